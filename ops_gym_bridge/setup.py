@@ -1,0 +1,26 @@
+from setuptools import find_packages, setup
+
+package_name = "ops_gym_bridge"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    install_requires=["setuptools", "numpy", "gymnasium", "stable-baselines3", "pyyaml", "tqdm"],
+    zip_safe=True,
+    maintainer="OPS developers",
+    maintainer_email="ops-dev@example.com",
+    description="Gymnasium env over the simulator topics; train, evaluate and benchmark CLIs.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "train = ops_gym_bridge.train:main",
+            "evaluate = ops_gym_bridge.evaluate:main",
+            "benchmark = ops_gym_bridge.benchmark:main",
+        ],
+    },
+)

