@@ -1,1 +1,1 @@
-"""Controllers for the optical pulse stacking simulator: SPGD-PID and a runner for learned stable-baselines3 policies."""
+"""Controllers for the OPS simulator: SPGD-PID and a runner for learned policies."""

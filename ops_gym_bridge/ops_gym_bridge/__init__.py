@@ -1,1 +1,1 @@
-"""Gymnasium environment over the simulator's ROS 2 topics, and the train / evaluate / benchmark command lines."""
+"""Gymnasium environment over the OPS simulator topics; train, evaluate, benchmark CLIs."""

@@ -1,0 +1,189 @@
+"""The SPGD-PID controller node ``ops_spgd``: closes the loop on a running simulator (or rig).
+
+Pairing of readings with set-points: the simulator publishes ``ops/delays`` (the set-points of a
+step) before that step's ``ops/power``. After sending a command the node waits for a delays
+message equal to it; only a power reading that arrives while the latest delays message matches the
+command is used, so a reading never predates its perturbation. The stage count is taken from
+``ops/delays``. If no matching reading arrives within ``timeout_s`` (simulator slow, restarted or
+gone) the command is sent again; a simulator that comes back with another stage restarts the
+controller from its set-points.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from ops_sim_ros.node_params import ParamSpec, declare_all
+from ops_sim_ros.ros_interface import (
+    QOS_RELIABLE,
+    TOPIC_DELAY_CMD,
+    TOPIC_DELAYS,
+    TOPIC_POWER,
+    ParameterError,
+    float_array_msg,
+    run_node,
+)
+from rclpy.node import Node
+from std_msgs.msg import Float32, Float32MultiArray
+
+from .spgd import SpgdParams, SpgdPid
+
+_DEFAULTS = SpgdParams()
+PARAMS = [
+    ParamSpec(
+        "gain",
+        _DEFAULTS.gain,
+        "SPGD gain: fs^2 per unit of normalized power",
+        low=0.0,
+        high=1e6,
+        low_exclusive=True,
+    ),
+    ParamSpec(
+        "perturbation_fs",
+        _DEFAULTS.perturbation_fs,
+        "dither amplitude per stage, fs",
+        low=0.0,
+        high=1e3,
+        low_exclusive=True,
+    ),
+    ParamSpec("kp", _DEFAULTS.kp, "PID proportional gain on the SPGD update", low=-1e6, high=1e6),
+    ParamSpec("ki", _DEFAULTS.ki, "PID integral gain", low=-1e6, high=1e6),
+    ParamSpec("kd", _DEFAULTS.kd, "PID derivative gain", low=-1e6, high=1e6),
+    ParamSpec(
+        "momentum", _DEFAULTS.momentum, "momentum of the update, in [0, 1)", low=0.0, high=0.999
+    ),
+    ParamSpec(
+        "max_update_fs",
+        _DEFAULTS.max_update_fs,
+        "largest set-point change per iteration",
+        low=0.0,
+        high=1e3,
+        low_exclusive=True,
+    ),
+    ParamSpec(
+        "rate_hz", 0.0, "largest command rate; 0: as fast as readings arrive", low=0.0, high=1e6
+    ),
+    ParamSpec(
+        "timeout_s",
+        1.0,
+        "re-send a command unanswered for this long",
+        low=0.0,
+        high=3600.0,
+        low_exclusive=True,
+    ),
+    ParamSpec("seed", -1, "random seed of the perturbations; -1 draws one", low=-1, high=2**31 - 1),
+    ParamSpec(
+        "log_period_s",
+        1.0,
+        "period of the progress log line",
+        low=0.0,
+        high=3600.0,
+        low_exclusive=True,
+    ),
+]
+# float32 on the wire: set-points of up to ~100 fs come back to ~1e-5 fs.
+_MATCH_TOL_FS = 1e-3
+
+
+class SpgdNode(Node):
+    def __init__(self):
+        super().__init__("ops_spgd")
+        v = declare_all(self, PARAMS)
+        try:
+            self._params = SpgdParams(
+                gain=v["gain"],
+                perturbation_fs=v["perturbation_fs"],
+                kp=v["kp"],
+                ki=v["ki"],
+                kd=v["kd"],
+                momentum=v["momentum"],
+                max_update_fs=v["max_update_fs"],
+            )
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        self._seed = None if v["seed"] < 0 else v["seed"]
+        self._min_period = 1.0 / v["rate_hz"] if v["rate_hz"] > 0 else 0.0
+        self._timeout = v["timeout_s"]
+        self._log_period = v["log_period_s"]
+
+        self._ctrl: SpgdPid | None = None
+        self._pending: np.ndarray | None = None  # command awaiting its reading
+        self._sent_at = 0.0
+        self._matched = False  # the latest delays message equals the pending command
+        self._last_delays: np.ndarray | None = None
+        self._next_allowed = 0.0
+
+        # Delays first: when both are ready the executor takes them in creation order.
+        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_RELIABLE)
+        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
+        self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
+        self.create_timer(0.05, self._watchdog)
+        self._log_timer = self.create_timer(self._log_period, self._log_progress)
+        self.get_logger().info(
+            f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)}"
+        )
+
+    # ------------------------------------------------------------------ loop
+    def _send(self):
+        self._pending = self._ctrl.command()
+        self._matched = False
+        self._sent_at = time.monotonic()
+        self._pub_cmd.publish(float_array_msg(self._pending))
+
+    def _on_delays(self, msg: Float32MultiArray):
+        delays = np.asarray(msg.data, dtype=np.float64)
+        if delays.size == 0 or not np.all(np.isfinite(delays)):
+            return
+        self._last_delays = delays
+        if self._ctrl is None or self._ctrl.stage != delays.size:
+            if self._ctrl is not None:
+                self.get_logger().warning(
+                    f"simulator now has {delays.size} stages (was {self._ctrl.stage}): restarting"
+                )
+            self._ctrl = SpgdPid(delays.size, self._params, setpoints_fs=delays, seed=self._seed)
+            self.get_logger().info(f"simulator found: {delays.size} stages; closing the loop")
+            self._send()
+            return
+        self._matched = self._pending is not None and np.allclose(
+            delays, self._pending, rtol=0.0, atol=_MATCH_TOL_FS
+        )
+
+    def _on_power(self, msg: Float32):
+        if self._pending is None or not self._matched or not np.isfinite(msg.data):
+            return
+        self._ctrl.observe(float(msg.data))
+        self._pending = None
+        now = time.monotonic()
+        if now >= self._next_allowed:
+            self._next_allowed = now + self._min_period
+            self._send()
+
+    def _watchdog(self):
+        if self._ctrl is None:
+            return
+        now = time.monotonic()
+        if self._pending is None:
+            if now >= self._next_allowed:  # rate-limited: the next command is due
+                self._next_allowed = now + self._min_period
+                self._send()
+        elif now - self._sent_at > self._timeout:
+            self.get_logger().warning(
+                "no reading for the last command: re-sending (simulator slow or restarted?)",
+                throttle_duration_sec=5.0,
+            )
+            self._send()
+
+    def _log_progress(self):
+        if self._ctrl is not None and self._ctrl.iterations:
+            self.get_logger().info(
+                f"iteration {self._ctrl.iterations}: P_N/P_max = {self._ctrl.last_power:.4f}"
+            )
+
+
+def main(args=None):
+    raise SystemExit(run_node(SpgdNode, args))
+
+
+if __name__ == "__main__":
+    main()

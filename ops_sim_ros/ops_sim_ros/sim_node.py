@@ -1,0 +1,265 @@
+"""The simulator node ``ops_sim``: the physics behind ROS 2 topics.
+
+Free-running (default): steps at ``rate_hz`` with the latest commanded set-points, as a rig whose
+noise advances with time. Lockstep (``lockstep:=true``): exactly one step per accepted command.
+Every step publishes one message on each output in a fixed order: delays (the set-points of this
+step) first, then intensity, power and reward, so a subscriber that processes ``ops/delays`` before
+the others knows which set-points produced the readings that follow. In lockstep every accepted
+command and every reset produces exactly one such group, so a client that waits for all four
+before sending the next command gets each command's own outputs (docs/interfaces.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from std_msgs.msg import Float32, Float32MultiArray
+from std_srvs.srv import Trigger
+
+from .config import MAX_STAGE, MODES, SPLITS, make_config
+from .node_params import ParamSpec, check_value, declare_all
+from .ros_interface import (
+    QOS_RELIABLE,
+    SERVICE_RESET,
+    TOPIC_DELAY_CMD,
+    TOPIC_DELAYS,
+    TOPIC_DIAGNOSTICS,
+    TOPIC_INTENSITY,
+    TOPIC_POWER,
+    TOPIC_REWARD,
+    ParameterError,
+    check_command,
+    float_array_msg,
+    run_node,
+    trace_msg,
+)
+from .simulation import BatchedSimulation
+
+# Noise and optics figures a user may override; names and units as in OpsConfig (optical cycles).
+# A negative value means "the mode's default".
+_CONFIG_OVERRIDES = (
+    ("jitter_sigma_cycles", "std of the fast delay jitter, optical cycles"),
+    ("drift_slope_max_cycles", "largest drift slope, optical cycles per step (hard mode)"),
+    ("drift_slope_min_cycles", "smallest drift slope, optical cycles per step (hard mode)"),
+    ("initial_range_cycles", "initial set-points uniform in +- this, optical cycles"),
+    ("actuator_range_cycles", "set-points are clipped to +- this, optical cycles"),
+    ("detector_noise", "std of additive noise on detected pulse energies (normalized)"),
+)
+
+PARAMS = [
+    ParamSpec("stage", 3, "number of stacking stages N (2^N pulses)", low=1, high=MAX_STAGE),
+    ParamSpec(
+        "mode", "medium", "difficulty: initial state and drift (paper Fig. 4)", choices=MODES
+    ),
+    ParamSpec("split", "train", "hard-mode noise variant (train or shifted test)", choices=SPLITS),
+    ParamSpec("seed", -1, "random seed; -1 draws one from the OS", low=-1, high=2**31 - 1),
+    ParamSpec(
+        "rate_hz", 100.0, "free-running step rate", low=0.0, high=100000.0, low_exclusive=True
+    ),
+    ParamSpec("lockstep", False, "true: one step per command instead of a timer"),
+    ParamSpec("samples_per_slot", 8, "trace samples per pulse slot", low=1, high=64),
+    ParamSpec(
+        "diagnostics_period_s",
+        1.0,
+        "period of /diagnostics status",
+        low=0.0,
+        high=3600.0,
+        low_exclusive=True,
+    ),
+    *[ParamSpec(name, -1.0, desc + " (-1: mode default)") for name, desc in _CONFIG_OVERRIDES],
+]
+_SPECS = {p.name: p for p in PARAMS}
+_LIVE = {
+    "mode",
+    "split",
+    "rate_hz",
+    "lockstep",
+    "diagnostics_period_s",
+    "detector_noise",
+    "jitter_sigma_cycles",
+    "drift_slope_max_cycles",
+    "drift_slope_min_cycles",
+    "initial_range_cycles",
+    "actuator_range_cycles",
+}
+_WARN_PERIOD_S = 2.0
+
+
+def config_from_params(values: dict):
+    """The validated OpsConfig for a set of parameter values (ParameterError if impossible)."""
+    overrides = {name: values[name] for name, _ in _CONFIG_OVERRIDES if values[name] >= 0.0}
+    try:
+        return make_config(
+            stage=values["stage"],
+            mode=values["mode"],
+            split=values["split"],
+            samples_per_slot=values["samples_per_slot"],
+            **overrides,
+        )
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
+
+
+class SimNode(Node):
+    def __init__(self):
+        super().__init__("ops_sim")
+        self._values = declare_all(self, PARAMS)
+        self._config = config_from_params(self._values)
+        seed = None if self._values["seed"] < 0 else self._values["seed"]
+        self._sim = BatchedSimulation(self._config, num_envs=1, seed=seed)
+        self._stage = self._config.stage
+
+        self._pub_intensity = self.create_publisher(
+            Float32MultiArray, TOPIC_INTENSITY, QOS_RELIABLE
+        )
+        self._pub_power = self.create_publisher(Float32, TOPIC_POWER, QOS_RELIABLE)
+        self._pub_reward = self.create_publisher(Float32, TOPIC_REWARD, QOS_RELIABLE)
+        self._pub_delays = self.create_publisher(Float32MultiArray, TOPIC_DELAYS, QOS_RELIABLE)
+        self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self.create_subscription(Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE)
+        self.create_service(Trigger, SERVICE_RESET, self._on_reset)
+
+        self._command = self._sim.setpoints_fs[0].copy()  # latest accepted set-points
+        self._result = self._sim.reset()
+        self._steps = 0
+        self._episodes = 1
+        self._timer = None
+        self._diag_timer = None
+        self._restart_timers()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.get_logger().info(
+            f"stage={self._stage} mode={self._config.mode} split={self._config.split} "
+            + ("lockstep" if self._values["lockstep"] else f"rate={self._values['rate_hz']} Hz")
+        )
+        self._publish()
+
+    # ------------------------------------------------------------------ stepping and publishing
+    def _restart_timers(self):
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+        if not self._values["lockstep"]:
+            self._timer = self.create_timer(1.0 / self._values["rate_hz"], self._step)
+        if self._diag_timer is not None:
+            self.destroy_timer(self._diag_timer)
+        self._diag_timer = self.create_timer(
+            self._values["diagnostics_period_s"], self._publish_diagnostics
+        )
+
+    def _step(self):
+        self._result = self._sim.step_setpoints(self._command[None, :])
+        self._steps += 1
+        self._publish()
+
+    def _publish(self):
+        r = self._result
+        trace = self._sim.trace(r)[0]
+        self._pub_delays.publish(float_array_msg(r.setpoints_fs[0]))
+        self._pub_intensity.publish(trace_msg(trace, self._config.samples_per_slot))
+        self._pub_power.publish(Float32(data=float(r.power[0])))
+        self._pub_reward.publish(Float32(data=float(r.reward[0])))
+
+    def _publish_diagnostics(self):
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.OK,
+            name="ops_sim",
+            message="running",
+            hardware_id="ops_sim_ros",
+        )
+        status.values = [
+            KeyValue(key=k, value=str(v))
+            for k, v in (
+                ("stage", self._stage),
+                ("mode", self._config.mode),
+                ("split", self._config.split),
+                ("lockstep", self._values["lockstep"]),
+                ("step", self._steps),
+                ("episode", self._episodes),
+                ("power", f"{float(self._result.power[0]):.4f}"),
+            )
+        ]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._pub_diag.publish(msg)
+
+    # ------------------------------------------------------------------ inputs
+    def _on_command(self, msg: Float32MultiArray):
+        values = list(msg.data)
+        problem = check_command(values, self._stage)
+        if problem:
+            self.get_logger().warning(
+                f"rejected delay command: {problem}; set-points unchanged",
+                throttle_duration_sec=_WARN_PERIOD_S,
+            )
+            return
+        command = np.asarray(values, dtype=np.float64)
+        limit = self._config.actuator_range_fs
+        if np.any(np.abs(command) > limit):
+            self.get_logger().warning(
+                f"delay command beyond the actuator range +-{limit:.1f} fs: clipped",
+                throttle_duration_sec=_WARN_PERIOD_S,
+            )
+            command = np.clip(command, -limit, limit)
+        self._command = command
+        if self._values["lockstep"]:
+            self._step()
+
+    def _on_reset(self, request, response):
+        self._result = self._sim.reset()
+        self._command = self._sim.setpoints_fs[0].copy()
+        self._episodes += 1
+        if self._values["lockstep"]:
+            self._publish()
+        response.success = True
+        response.message = f"episode {self._episodes} started"
+        return response
+
+    def _on_set_parameters(self, params):
+        new = dict(self._values)
+        for p in params:
+            spec = _SPECS.get(p.name)
+            if spec is None:
+                continue
+            if p.name not in _LIVE:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"{p.name} cannot change while the simulator runs; restart the node",
+                )
+            value = (
+                float(p.value)
+                if isinstance(spec.default, float) and isinstance(p.value, int)
+                else p.value
+            )
+            problem = check_value(spec, value)
+            if problem:
+                return SetParametersResult(successful=False, reason=problem)
+            new[p.name] = value
+        try:
+            config = config_from_params(new)
+        except ParameterError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        timers_changed = any(
+            new[k] != self._values[k] for k in ("rate_hz", "lockstep", "diagnostics_period_s")
+        )
+        self._values = new
+        if config != self._config:
+            # Noise figures and mode apply from now on: the simulation is rebuilt around the
+            # current set-points and random stream (its drift restarts with the new figures).
+            old = self._sim
+            self._config = config
+            self._sim = BatchedSimulation(config, num_envs=1, seed=old.rng)
+            self._sim.setpoints_fs = old.setpoints_fs.copy()
+            self._sim.last = old.last
+        if timers_changed:
+            self._restart_timers()
+        return SetParametersResult(successful=True)
+
+
+def main(args=None):
+    raise SystemExit(run_node(SimNode, args))
+
+
+if __name__ == "__main__":
+    main()
