@@ -1,0 +1,147 @@
+"""In-process Gymnasium environment of the optical pulse stacker (the paper's Figure 5 API)."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .config import make_config
+from .observation import ObservationSpec, build_observation
+from .simulation import BatchedSimulation, StepResult
+
+ACTION_TYPES = ("increment", "absolute")
+
+
+class OpsEnv(gym.Env):
+    """N-stage optical pulse stacking.
+
+    Action: Box [-1, 1]^N. ``action_type="increment"`` (default): set-point changes in units of
+    the actuator's max step per control step; ``"absolute"``: set-points in units of
+    ``absolute_action_range_cycles`` optical periods. Observation: see
+    :mod:`ops_sim_ros.observation`. Reward: eq. (3), -(1 - P_N/P_max)^2. Episodes end by
+    truncation after ``max_episode_steps`` steps, never by termination.
+
+    ``info``: ``power`` (P_N/P_max), ``delays_fs`` (applied delays: set-point + noise),
+    ``setpoints_fs``, ``main_pulse_energy``, ``rejected_energy``, ``clipped``.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        stage: int = 5,
+        mode: str = "medium",
+        split: str = "train",
+        action_type: str = "increment",
+        render_mode: str | None = None,
+        max_episode_steps: int = 200,
+        observation_options: dict[str, Any] | None = None,
+        **overrides: Any,
+    ) -> None:
+        super().__init__()
+        if action_type not in ACTION_TYPES:
+            raise ValueError(
+                f"action_type must be one of {', '.join(ACTION_TYPES)} (got {action_type!r})"
+            )
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of None, human, rgb_array (got {render_mode!r})"
+            )
+        self.config = make_config(
+            stage=stage, mode=mode, split=split, episode_steps=max_episode_steps, **overrides
+        )
+        self.stage = self.config.stage
+        self.action_type = action_type
+        self.render_mode = render_mode
+        self.obs_spec = ObservationSpec.from_config(self.config, **(observation_options or {}))
+        self.observation_space = self.obs_spec.space()
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(self.stage,), dtype=np.float32)
+        self.sim = BatchedSimulation(self.config, num_envs=1, seed=None)
+        self._abs_scale = self.config.absolute_action_range_fs
+        self._last: StepResult | None = None
+        self._viewer = None
+
+    @property
+    def optical_period_fs(self) -> float:
+        return self.config.optical_period_fs
+
+    def _obs_info(self, r: StepResult) -> tuple[np.ndarray, dict[str, Any]]:
+        obs = build_observation(self.obs_spec, r.pulse_energies[0], r.power[0], r.setpoints_fs[0])
+        # The simulation makes fresh arrays every step, so views are safe to hand out.
+        info = {
+            "power": float(r.power[0]),
+            "delays_fs": r.applied_fs[0],
+            "setpoints_fs": r.setpoints_fs[0],
+            "main_pulse_energy": float(r.main_pulse_energy[0]),
+            "rejected_energy": float(r.rejected_energy[0]),
+            "clipped": r.clipped[0],
+        }
+        return obs, info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            # Same seed -> same episode: restart the simulation's random stream and its drift.
+            r = self.sim.reset(seed=self.np_random)
+        else:
+            if self.sim.rng is not self.np_random:
+                self.sim.rng = self.np_random
+                self.sim.noise.rng = self.np_random
+            r = self.sim.reset()
+        if options and "setpoints_fs" in options:
+            sp = np.asarray(options["setpoints_fs"], dtype=np.float64).reshape(1, self.stage)
+            self.sim.setpoints_fs[:] = np.clip(sp, -self.sim.range_fs, self.sim.range_fs)
+            r = self.sim.reset(mask=np.zeros(1, bool))
+            r = self.sim._measure(
+                self.sim.setpoints_fs.copy(), np.zeros((1, self.stage), bool), advance=False
+            )
+            self.sim.last = r
+        self._last = r
+        obs, info = self._obs_info(r)
+        if self.render_mode == "human":
+            self.render()
+        return obs, info
+
+    def step(self, action):
+        if self._last is None:
+            raise RuntimeError("call reset() before step()")
+        if self.action_type == "increment":
+            r = self.sim.step_increments(action)
+        else:
+            a = np.asarray(action, dtype=np.float64).reshape(1, self.stage)
+            r = self.sim.step_setpoints(np.clip(a, -1.0, 1.0) * self._abs_scale)
+        self._last = r
+        obs, info = self._obs_info(r)
+        if self.render_mode == "human":
+            self.render()
+        return obs, float(r.reward[0]), False, bool(r.truncated[0]), info
+
+    # ------------------------------------------------------------------ rendering
+    def trace(self) -> np.ndarray:
+        """The detected output intensity trace of the last step, (S * samples_per_slot,)."""
+        if self._last is None:
+            raise RuntimeError("call reset() first")
+        return self.sim.trace(self._last)[0]
+
+    def render(self):
+        if self.render_mode is None or self._last is None:
+            return None
+        from . import rendering
+
+        title = f"{self.stage}-stage OPS, {self.config.mode}"
+        power = float(self._last.power[0])
+        args = (self.trace(), self.config.samples_per_slot, self.config.pulse_spacing_fs)
+        if self.render_mode == "rgb_array":
+            return rendering.render_rgb(*args, power=power, title=title)
+        if self._viewer is None:
+            self._viewer = rendering.HumanViewer()
+        self._viewer.show(*args, power=power, title=title)
+        return None
+
+    def close(self) -> None:
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None

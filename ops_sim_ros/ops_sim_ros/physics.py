@@ -1,0 +1,335 @@
+"""Batched physics of a polarization-multiplexed N-stage optical pulse stacker.
+
+Model (see ``docs/physics.md`` for the derivation):
+
+* Input: 2^N identical, H-polarized sech^2 pulses in time slots 0 .. 2^N - 1 (slot spacing T).
+* Stage j = 1..N, d = 2^(j-1):
+  1. a Pockels-cell gate swaps H <-> V in every slot s with floor(s / d) even (the earlier group
+     of each pair);
+  2. a polarizing beam splitter sends V through the delay line: V moves by d slots plus the delay
+     error delta_j (envelope shift and carrier phase exp(i w0 delta_j)); H goes straight;
+  3. the beams recombine and a half-wave plate at 22.5 deg mixes them:
+     H' = (H + V) / sqrt(2), V' = (H - V) / sqrt(2).
+* After the last stage an output polarizer passes H' (the output trace) and rejects V'.
+
+Every path through the stacker is labelled by its delay pattern b (bit j-1 set: went through
+stage j's delay line), so the field in output slot s is exactly
+
+    E_s(t) = sum_b C[s, b] * exp(i w0 s_b) * a(t - s_b),     s_b = sum_j bit_j(b) delta_j,
+
+with C a constant real matrix of the geometry, built once by propagating unit amplitudes. Slot
+energies and the second-order detector signal (integral of I^2) are integrals over t, done with a
+K-point Gauss-Legendre rule in x = tanh(t / t0), which is exact for an unshifted sech^2 and sech^4
+and converges geometrically for shifted ones. For a batch all of this is ONE real matrix product.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import SPEED_OF_LIGHT_NM_PER_FS
+
+SECH_FWHM_FACTOR = 2.0 * np.arccosh(np.sqrt(2.0))  # FWHM of sech^2(t/t0) = 1.7627 t0
+
+
+def geometry_matrices(stage: int) -> tuple[np.ndarray, np.ndarray]:
+    """Propagate unit amplitudes through the stacker geometry.
+
+    Returns ``(C_H, C_V)``, each (2^(N+1) - 1 slots, 2^N delay patterns): the amplitude with which
+    input pulse energy of delay pattern b arrives in output slot s of the transmitted (H) and the
+    rejected (V) port of the output polarizer, before the envelope and carrier factors.
+    """
+    n = int(stage)
+    num_in = 2**n
+    num_slots = 2 ** (n + 1) - 1
+    amp = np.zeros((2, num_slots, num_in))  # (polarization H/V, slot, pattern)
+    amp[0, :num_in, 0] = 1.0
+    slots = np.arange(num_slots)
+    inv_sqrt2 = 1.0 / np.sqrt(2.0)
+    for j in range(1, n + 1):
+        d = 2 ** (j - 1)
+        gated = (slots // d) % 2 == 0
+        amp[:, gated] = amp[::-1, gated]  # Pockels cell: swap H and V in gated slots
+        h = amp[0]
+        v = np.zeros_like(h)  # PBS: V takes the delay line (d slots, pattern bit j-1)
+        assert not np.any(amp[1, num_slots - d :]), "energy would leave the slot window"
+        v[d:, d:] = amp[1, : num_slots - d, : num_in - d]
+        # A pattern bit j-1 is never set before stage j, so the shift above is exact; check it.
+        assert not np.any(amp[1][:, d:][:, ((np.arange(d, num_in) >> (j - 1)) & 1) == 1])
+        amp = np.stack(((h + v) * inv_sqrt2, (h - v) * inv_sqrt2))  # half-wave plate at 22.5 deg
+    return amp[0].copy(), amp[1].copy()
+
+
+@dataclass
+class StackerOutput:
+    """Everything one physics evaluation gives, for a batch of B delay-error vectors.
+
+    Energies are normalized by the input energy (2^N pulses), so they sum to 1 over both ports.
+    """
+
+    power: np.ndarray  # (B,) P_N / P_max: second-order detector signal, normalized
+    slot_energies: np.ndarray  # (B, S) energy in each output slot of the transmitted (H) port
+    main_pulse_energy: np.ndarray  # (B,) energy in the stacked-pulse slot (time 2^N - 1)
+    rejected_energy: np.ndarray  # (B,) energy leaving through the output polarizer's V port
+    rejected_slot_energies: np.ndarray | None = None  # (B, S) when computed explicitly
+
+    @property
+    def satellite_energies(self) -> np.ndarray:
+        """(B, S) H-port energies with the main slot set to zero."""
+        sat = self.slot_energies.copy()
+        sat[:, (sat.shape[1] - 1) // 2] = 0.0
+        return sat
+
+
+class PulseStacker:
+    """Noise-free, batched N-stage pulse stacker.
+
+    Parameters
+    ----------
+    stage:
+        Number of stages N (2^N pulses are stacked).
+    wavelength_nm, pulse_fwhm_fs:
+        Carrier wavelength and sech^2 intensity FWHM of the input pulses.
+    quadrature_points:
+        Time samples per slot for the energy and I^2 integrals (Gauss-Legendre in tanh(t/t0)).
+    samples_per_slot:
+        Samples of the detected intensity trace per slot (see :meth:`trace`).
+    dtype:
+        ``np.float32`` (fast, default) or ``np.float64`` (reference) for the big matrix product.
+
+    All delay arguments are delay *errors* in fs relative to the nominal 2^(j-1) T, shaped
+    (batch, N) or (N,).
+    """
+
+    def __init__(
+        self,
+        stage: int = 5,
+        wavelength_nm: float = 1030.0,
+        pulse_fwhm_fs: float = 1000.0,
+        quadrature_points: int = 6,
+        samples_per_slot: int = 8,
+        dtype: type = np.float32,
+    ) -> None:
+        self.stage = int(stage)
+        if self.stage < 1:
+            raise ValueError(f"stage must be >= 1 (got {stage})")
+        self.wavelength_nm = float(wavelength_nm)
+        self.pulse_fwhm_fs = float(pulse_fwhm_fs)
+        self.quadrature_points = int(quadrature_points)
+        self.samples_per_slot = int(samples_per_slot)
+        self.dtype = np.dtype(dtype)
+        n = self.stage
+        self.num_patterns = 2**n
+        self.num_slots = 2**n - 1  # output slots that can hold light (odd time slots)
+        self.main_slot = 2 ** (n - 1) - 1  # index of the stacked pulse (time slot 2^N - 1)
+        self.optical_period_fs = self.wavelength_nm / SPEED_OF_LIGHT_NM_PER_FS
+        self.omega0 = 2.0 * np.pi / self.optical_period_fs  # rad / fs
+        self.t0_fs = self.pulse_fwhm_fs / SECH_FWHM_FACTOR
+
+        c_h, c_v = geometry_matrices(n)
+        # Light only ever reaches odd time slots (stage 1 moves every pulse to one), so the
+        # output window is the 2^N - 1 odd slots 1, 3, ..., 2^(N+1) - 3; even rows are zero.
+        assert not np.any(c_h[0::2]) and not np.any(c_v[0::2])
+        self.c_h, self.c_v = c_h[1::2], c_v[1::2]
+        c_h, c_v = self.c_h, self.c_v
+        self.slot_times_T = np.arange(1, 2 ** (n + 1) - 2, 2)  # slot centres in units of T
+        self._ct_h = np.ascontiguousarray(c_h.T, dtype=self.dtype)  # (P, S)
+        self._ct_hv = np.ascontiguousarray(np.concatenate([c_h, c_v]).T, dtype=self.dtype)
+        patterns = np.arange(self.num_patterns)
+        self.bits = ((patterns[:, None] >> np.arange(n)[None, :]) & 1).astype(np.float64)
+        self._bits_t = np.ascontiguousarray(self.bits.T)  # (N, P)
+
+        x, w = np.polynomial.legendre.leggauss(self.quadrature_points)
+        self.quad_t_fs = self.t0_fs * np.arctanh(x)  # nodes in time, relative to slot centre
+        self.quad_w_fs = self.t0_fs * w / (1.0 - x * x)  # weights incl. Jacobian dt/dx
+        self._nodes_u = (self.quad_t_fs / self.t0_fs).astype(self.dtype)  # nodes in units of t0
+        self._w = (w / (1.0 - x * x)).astype(self.dtype)  # weights in units of t0
+        self._exp_nodes = np.exp(self._nodes_u.astype(np.float64)).astype(self.dtype)
+        self._exp_neg_nodes = np.exp(-self._nodes_u.astype(np.float64)).astype(self.dtype)
+        self.pulse_energy = 2.0 * self.t0_fs  # integral of sech^2(t/t0) dt, one input pulse
+        self.input_energy = self.num_patterns * self.pulse_energy
+        # P_max: integral of I^2 of the perfectly stacked pulse, 2^(2N) * integral of sech^4.
+        self.p_max = float(self.num_patterns**2 * (4.0 / 3.0) * self.t0_fs)
+        self._energy_scale = self.t0_fs / self.input_energy
+        self._power_scale = self.t0_fs / self.p_max
+        # Small batches (a single env) take a float64 complex path with fewer numpy calls.
+        self._ct_h_complex = self.c_h.T.astype(np.complex128)
+        self._bits_t_complex = self._bits_t * (1j * self.omega0)
+        # envelope argument u_k - (s_p - m)/t0 = nodes_k + d @ A  (A: (N, K*P))
+        k, npat = self.quadrature_points, self.num_patterns
+        self._arg_a = np.tile(-(self._bits_t - 0.5) / self.t0_fs, (1, k))
+        self._arg_nodes = np.repeat(np.arctanh(x), npat)
+        self._sqrt_w = np.sqrt(w / (1.0 - x * x))[:, None]
+
+        spp = self.samples_per_slot
+        width = max(spp / 8.0, 0.5)
+        self.trace_bump = np.exp(-0.5 * ((np.arange(spp) - spp // 2) / width) ** 2).astype(
+            np.float32
+        )
+
+    # ------------------------------------------------------------------ core evaluation
+    def evaluate(self, delay_errors_fs, rejected_port: bool = False) -> StackerOutput:
+        """Evaluate a batch of delay-error vectors; see :class:`StackerOutput`.
+
+        With ``rejected_port=True`` the V port is computed explicitly (one wider matrix product);
+        otherwise ``rejected_energy`` is 1 - (H-port energy), which the tests show equals it.
+        """
+        d = np.asarray(delay_errors_fs, dtype=np.float64)
+        single = d.ndim == 1
+        if single:
+            d = d[None, :]
+        if d.ndim != 2 or d.shape[1] != self.stage:
+            raise ValueError(
+                f"delay errors must have shape (batch, {self.stage}) or ({self.stage},), "
+                f"got {np.shape(delay_errors_fs)}"
+            )
+        batch = d.shape[0]
+        s = self.num_slots
+        k = self.quadrature_points
+        if batch == 1 and not rejected_port:
+            energies, power = self._single(d)
+        else:
+            ct = self._ct_hv if rejected_port else self._ct_h
+            inten = self._intensity_at_nodes(d, ct)  # (K, B, S[*2]) |E|^2 at the nodes
+            inten_h = inten[:, :, :s]
+            energies = (self._w @ inten_h.reshape(k, -1)).reshape(batch, -1)
+            energies = energies[:, :s].astype(np.float64) * self._energy_scale
+            np.square(inten_h, out=inten_h)
+            p_n = (self._w @ inten_h.reshape(k, -1)).reshape(batch, -1)[:, :s]
+            power = p_n.sum(axis=1, dtype=np.float64) * self._power_scale
+        rejected_slots = None
+        if rejected_port:
+            rej = np.ascontiguousarray(inten[:, :, s:]).reshape(k, -1)
+            rejected_slots = (self._w @ rej).reshape(batch, s).astype(np.float64)
+            rejected_slots *= self._energy_scale
+            rejected = rejected_slots.sum(axis=1)
+        else:
+            rejected = 1.0 - energies.sum(axis=1)
+        out = StackerOutput(
+            power=power,
+            slot_energies=energies,
+            main_pulse_energy=energies[:, self.main_slot].copy(),
+            rejected_energy=rejected,
+            rejected_slot_energies=rejected_slots,
+        )
+        if single:
+            out = StackerOutput(
+                power=out.power[0],
+                slot_energies=out.slot_energies[0],
+                main_pulse_energy=out.main_pulse_energy[0],
+                rejected_energy=out.rejected_energy[0],
+                rejected_slot_energies=None if rejected_slots is None else rejected_slots[0],
+            )
+        return out
+
+    def _single(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Same integrals as the batched path for one row, float64 complex, few numpy calls."""
+        k, npat = self.quadrature_points, self.num_patterns
+        env = np.cosh(np.add(d @ self._arg_a, self._arg_nodes)).reshape(k, npat)
+        u = np.exp(d @ self._bits_t_complex)  # (1, P) carrier factors exp(i w0 s_p)
+        e = np.divide(u, env) @ self._ct_h_complex  # (K, S) field at the nodes
+        ev = e.view(np.float64)
+        np.square(ev, out=ev)
+        iw = np.add(ev[:, 0::2], ev[:, 1::2])  # |E|^2
+        iw *= self._sqrt_w  # sqrt(w_k) |E|^2
+        energies = (self._sqrt_w.T @ iw) * self._energy_scale  # (1, S)
+        power = np.array([np.vdot(iw, iw) * self._power_scale])
+        return energies, power
+
+    def _intensity_at_nodes(self, d: np.ndarray, ct: np.ndarray) -> np.ndarray:
+        """|E|^2 at the K quadrature nodes of every output slot: (K, B, S) (S doubled for HV).
+
+        G[c, k, b, p] = {cos, sin}(w0 s_p) * sech(u_k - (s_p - m) / t0) for c = re, im, then
+        E = G @ C^T as one (2 K B, P) x (P, S) real matrix product.
+        """
+        batch = d.shape[0]
+        k = self.quadrature_points
+        npat = self.num_patterns
+        if batch >= 16:
+            # Build per-pattern factors by doubling over stages: factor(b) = prod_j f_j^bit_j.
+            # Cheaper than trig/exp on (B, P) and exact up to rounding.
+            z = np.exp(1j * self.omega0 * d)  # (B, N) carrier factor of each stage
+            ez = np.exp(d * (1.0 / self.t0_fs))  # (B, N) envelope-shift factor
+            u = np.empty((batch, npat), dtype=np.complex128)
+            ep = np.empty((batch, npat), dtype=np.float64)
+            u[:, 0] = 1.0
+            ep[:, 0] = 1.0
+            for j in range(self.stage):
+                h = 1 << j
+                np.multiply(u[:, :h], z[:, j : j + 1], out=u[:, h : 2 * h])
+                np.multiply(ep[:, :h], ez[:, j : j + 1], out=ep[:, h : 2 * h])
+            ep *= np.exp(-0.5 * d.sum(axis=1, keepdims=True) * (1.0 / self.t0_fs))
+            cos2 = (2.0 * u.real).astype(self.dtype)
+            sin2 = (2.0 * u.imag).astype(self.dtype)
+        else:
+            shifts = d @ self._bits_t  # (B, P) total delay of each pattern, fs
+            phase = shifts * self.omega0
+            ep = np.exp((shifts - 0.5 * d.sum(axis=1, keepdims=True)) * (1.0 / self.t0_fs))
+            cos2 = (2.0 * np.cos(phase)).astype(self.dtype)
+            sin2 = (2.0 * np.sin(phase)).astype(self.dtype)
+        ep32 = ep.astype(self.dtype)
+        em32 = (1.0 / ep).astype(self.dtype)
+        # sech(u_k - c) = 2 / (e^{u_k} e^{-c} + e^{-u_k} e^{c})
+        den = np.multiply(self._exp_nodes[:, None, None], em32[None])  # (K, B, P)
+        den += self._exp_neg_nodes[:, None, None] * ep32[None]
+        g = np.empty((2, k, batch, npat), dtype=self.dtype)
+        np.divide(cos2[None], den, out=g[0])
+        np.divide(sin2[None], den, out=g[1])
+        e = g.reshape(2 * k * batch, npat) @ ct  # ONE real GEMM for the whole batch
+        e = e.reshape(2, k, batch, ct.shape[1])
+        np.square(e, out=e)
+        return np.add(e[0], e[1], out=e[0])
+
+    # ------------------------------------------------------------------ public helpers
+    def power(self, delay_errors_fs) -> np.ndarray:
+        """P_N / P_max, shape (batch,) (a scalar array for an (N,) input)."""
+        return self.evaluate(delay_errors_fs).power
+
+    def reward(self, delay_errors_fs) -> np.ndarray:
+        """Eq. (3) with P_min = 0: -(1 - P_N/P_max)^2."""
+        return power_to_reward(self.power(delay_errors_fs))
+
+    def slot_energies(self, delay_errors_fs) -> np.ndarray:
+        """H-port energy per output slot, normalized by the input energy."""
+        return self.evaluate(delay_errors_fs).slot_energies
+
+    def trace(self, delay_errors_fs) -> np.ndarray:
+        """Detected output intensity traces, (batch, S * samples_per_slot) float32 in [0, 1]."""
+        return self.trace_from_energies(self.evaluate(delay_errors_fs).slot_energies)
+
+    def trace_from_energies(self, slot_energies) -> np.ndarray:
+        """Draw each slot's energy as a detector-limited bump of ``samples_per_slot`` samples.
+
+        The bump peaks at sample ``samples_per_slot // 2`` of its slot with the slot energy
+        (normalized by the perfectly stacked pulse's energy), so sampling the slot centres gives
+        the pulse energies back (:func:`ops_sim_ros.observation.pulse_energies_from_trace`).
+        """
+        e = np.asarray(slot_energies, dtype=np.float32)
+        tr = e[..., :, None] * self.trace_bump
+        return tr.reshape(*e.shape[:-1], e.shape[-1] * self.samples_per_slot)
+
+    def trace_time_axis_ns(self, pulse_spacing_fs: float = 12.5e6) -> np.ndarray:
+        """Time of every trace sample in ns (output slot i is time slot 2i + 1)."""
+        from .rendering import trace_time_axis_ns
+
+        return trace_time_axis_ns(self.num_slots, self.samples_per_slot, pulse_spacing_fs)
+
+
+def power_to_reward(power, p_min: float = 0.0) -> np.ndarray:
+    """Eq. (3) of the paper with normalized P: -(P - 1)^2 / (P_min - 1)^2."""
+    p = np.asarray(power, dtype=np.float64)
+    return -((p - 1.0) ** 2) / (p_min - 1.0) ** 2
+
+
+def stacker_from_config(config, dtype: type = np.float32) -> PulseStacker:
+    """The :class:`PulseStacker` an :class:`~ops_sim_ros.config.OpsConfig` describes."""
+    return PulseStacker(
+        stage=config.stage,
+        wavelength_nm=config.wavelength_nm,
+        pulse_fwhm_fs=config.pulse_fwhm_fs,
+        quadrature_points=config.quadrature_points,
+        samples_per_slot=config.samples_per_slot,
+        dtype=dtype,
+    )

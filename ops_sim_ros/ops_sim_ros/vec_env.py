@@ -1,0 +1,262 @@
+"""Many stackers stepped by ONE batched physics call: a Gymnasium ``VectorEnv`` and a
+stable-baselines3 ``VecEnv``, both thin shells around :class:`BatchedSimulation`.
+
+Autoreset conventions differ between the libraries:
+
+* :class:`OpsVectorEnv` declares ``autoreset_mode = AutoresetMode.SAME_STEP``: an env whose episode
+  ends is reset inside that same ``step``; the returned observation is the new episode's first one,
+  the last observation is in ``info["final_obs"]`` (object array, ``None`` elsewhere) with mask
+  ``info["_final_obs"]``, and its info in ``info["final_info"]``, exactly as
+  ``gymnasium.vector.SyncVectorEnv(..., autoreset_mode=SAME_STEP)`` lays them out.
+* :class:`OpsSb3VecEnv` follows stable-baselines3: ``step_wait`` returns ``(obs, rewards, dones,
+  infos)``, resets finished envs inside the step and puts ``terminal_observation`` and
+  ``TimeLimit.truncated`` into their info dicts.
+
+All episodes end by truncation (``max_episode_steps``), never by termination.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from .config import make_config
+from .env import ACTION_TYPES
+from .observation import ObservationSpec, build_observation
+from .simulation import BatchedSimulation, StepResult
+
+
+class _BatchCore:
+    """Shared by both adapters: config, spaces, simulation, action handling and info arrays."""
+
+    def _setup(
+        self,
+        num_envs,
+        stage,
+        mode,
+        split,
+        action_type,
+        max_episode_steps,
+        seed,
+        observation_options,
+        overrides,
+    ) -> None:
+        if action_type not in ACTION_TYPES:
+            raise ValueError(
+                f"action_type must be one of {', '.join(ACTION_TYPES)} (got {action_type!r})"
+            )
+        self.config = make_config(
+            stage=stage, mode=mode, split=split, episode_steps=max_episode_steps, **overrides
+        )
+        self.stage = self.config.stage
+        self.action_type = action_type
+        self.obs_spec = ObservationSpec.from_config(self.config, **(observation_options or {}))
+        self.single_observation_space = self.obs_spec.space()
+        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(self.stage,), dtype=np.float32)
+        self.sim = BatchedSimulation(self.config, num_envs=num_envs, seed=seed)
+        self._abs_scale = self.config.absolute_action_range_fs
+
+    def _apply(self, actions) -> StepResult:
+        if self.action_type == "increment":
+            return self.sim.step_increments(actions)
+        a = np.asarray(actions, dtype=np.float64)
+        return self.sim.step_setpoints(np.clip(a, -1.0, 1.0) * self._abs_scale)
+
+    def _obs(self, r: StepResult) -> np.ndarray:
+        return build_observation(self.obs_spec, r.pulse_energies, r.power, r.setpoints_fs)
+
+    @staticmethod
+    def _info_arrays(r: StepResult) -> dict[str, Any]:
+        return {
+            "power": r.power,
+            "delays_fs": r.applied_fs,
+            "setpoints_fs": r.setpoints_fs,
+            "main_pulse_energy": r.main_pulse_energy,
+            "rejected_energy": r.rejected_energy,
+        }
+
+
+class OpsVectorEnv(_BatchCore, VectorEnv):
+    """Gymnasium vector env of ``num_envs`` stackers (SAME_STEP autoreset)."""
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "autoreset_mode": AutoresetMode.SAME_STEP,
+        "render_modes": [],
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 8,
+        stage: int = 5,
+        mode: str = "medium",
+        split: str = "train",
+        action_type: str = "increment",
+        max_episode_steps: int = 200,
+        seed: int | None = None,
+        observation_options: dict[str, Any] | None = None,
+        **overrides: Any,
+    ) -> None:
+        self.num_envs = int(num_envs)
+        self._setup(
+            self.num_envs,
+            stage,
+            mode,
+            split,
+            action_type,
+            max_episode_steps,
+            seed,
+            observation_options,
+            overrides,
+        )
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.render_mode = None
+        self._ones = np.ones(self.num_envs, dtype=bool)
+
+    def _infos(self, r: StepResult) -> dict[str, Any]:
+        info = self._info_arrays(r)
+        for key in list(info):
+            info["_" + key] = self._ones
+        return info
+
+    def reset(self, *, seed: int | list | None = None, options: dict[str, Any] | None = None):
+        if isinstance(seed, list | tuple):
+            seed = seed[0]  # one shared random stream for the whole batch
+        if seed is not None:
+            self._np_random, _ = gym.utils.seeding.np_random(seed)
+            r = self.sim.reset(seed=self._np_random)
+        else:
+            mask = None if options is None else options.get("reset_mask")
+            r = self.sim.reset(mask=mask)
+        return self._obs(r), self._infos(r)
+
+    def step(self, actions):
+        r = self._apply(actions)
+        obs = self._obs(r)
+        done = r.truncated
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        truncated = done.copy()
+        rewards = r.reward.copy()
+        if not done.any():
+            return obs, rewards, terminated, truncated, self._infos(r)
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for i in np.flatnonzero(done):
+            final_obs[i] = obs[i]
+        final_info = self._infos(r)
+        for key, value in list(final_info.items()):
+            if key.startswith("_"):
+                final_info[key] = done.copy()
+            else:
+                final_info[key] = np.where(
+                    done.reshape(-1, *([1] * (value.ndim - 1))), value, np.zeros_like(value)
+                )
+        r2 = self.sim.reset(mask=done)
+        obs = self._obs(r2)
+        info = self._infos(r2)
+        info.update(
+            final_obs=final_obs,
+            _final_obs=done.copy(),
+            final_info=final_info,
+            _final_info=done.copy(),
+        )
+        return obs, rewards, terminated, truncated, info
+
+    def close_extras(self, **kwargs: Any) -> None:
+        pass
+
+
+_SB3_CLASS = None
+
+
+def __getattr__(name: str):
+    # OpsSb3VecEnv subclasses stable-baselines3's VecEnv, which imports torch: build the class on
+    # first use so that importing this module (and OpsVectorEnv) stays light.
+    if name == "OpsSb3VecEnv":
+        global _SB3_CLASS
+        if _SB3_CLASS is None:
+            _SB3_CLASS = _make_sb3_class()
+        return _SB3_CLASS
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _make_sb3_class():
+    from stable_baselines3.common.vec_env import VecEnv
+
+    class OpsSb3VecEnv(_BatchCore, VecEnv):
+        """stable-baselines3 ``VecEnv`` of ``num_envs`` stackers on one batched simulation."""
+
+        def __init__(
+            self,
+            num_envs: int = 8,
+            stage: int = 5,
+            mode: str = "medium",
+            split: str = "train",
+            action_type: str = "increment",
+            max_episode_steps: int = 200,
+            seed: int | None = None,
+            observation_options: dict[str, Any] | None = None,
+            **overrides: Any,
+        ) -> None:
+            self._setup(
+                int(num_envs),
+                stage,
+                mode,
+                split,
+                action_type,
+                max_episode_steps,
+                seed,
+                observation_options,
+                overrides,
+            )
+            super().__init__(int(num_envs), self.single_observation_space, self.single_action_space)
+            self._actions = None
+
+        def reset(self):
+            seed = self._seeds[0] if self._seeds and self._seeds[0] is not None else None
+            r = self.sim.reset(seed=seed)
+            self._reset_seeds()
+            self._reset_options()
+            return self._obs(r)
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = actions
+
+        def step_wait(self):
+            r = self._apply(self._actions)
+            obs = self._obs(r)
+            dones = r.truncated.copy()
+            rewards = r.reward.astype(np.float32)
+            power = r.power.tolist()
+            infos = [{"power": p} for p in power]
+            if dones.any():
+                for i in np.flatnonzero(dones):
+                    infos[i]["terminal_observation"] = obs[i]
+                    infos[i]["TimeLimit.truncated"] = True
+                obs = self._obs(self.sim.reset(mask=dones))
+            return obs, rewards, dones, infos
+
+        def close(self) -> None:
+            pass
+
+        def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+            return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+        def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+            setattr(self, attr_name, value)
+
+        def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs):
+            return [
+                getattr(self, method_name)(*method_args, **method_kwargs)
+                for _ in self._get_indices(indices)
+            ]
+
+        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+            return [False for _ in self._get_indices(indices)]
+
+    OpsSb3VecEnv.__module__ = __name__
+    return OpsSb3VecEnv
