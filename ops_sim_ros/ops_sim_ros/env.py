@@ -93,8 +93,7 @@ class OpsEnv(gym.Env):
             r = self.sim.reset()
         if options and "setpoints_fs" in options:
             sp = np.asarray(options["setpoints_fs"], dtype=np.float64).reshape(1, self.stage)
-            self.sim.setpoints_fs[:] = np.clip(sp, -self.sim.range_fs, self.sim.range_fs)
-            r = self.sim.reset(mask=np.zeros(1, bool))
+            self.sim.setpoints_fs = np.clip(sp, -self.sim.range_fs, self.sim.range_fs)
             r = self.sim._measure(
                 self.sim.setpoints_fs.copy(), np.zeros((1, self.stage), bool), advance=False
             )

@@ -75,7 +75,9 @@ class BatchedSimulation:
         mask = np.asarray(mask, dtype=bool)
         count = int(mask.sum())
         r = self.config.initial_range_fs
-        self.setpoints_fs[mask] = self.rng.uniform(-r, r, size=(count, self.stage))
+        sp = self.setpoints_fs.copy()  # fresh array: earlier results may still view the old one
+        sp[mask] = self.rng.uniform(-r, r, size=(count, self.stage))
+        self.setpoints_fs = sp
         self.step_count[mask] = 0
         result = self._measure(
             self.setpoints_fs.copy(), np.zeros_like(self.setpoints_fs, bool), advance=False

@@ -78,6 +78,7 @@ class _BatchCore:
             "setpoints_fs": r.setpoints_fs,
             "main_pulse_energy": r.main_pulse_energy,
             "rejected_energy": r.rejected_energy,
+            "clipped": r.clipped,
         }
 
 

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from ops_sim_ros.physics import PulseStacker, geometry_matrices, power_to_reward
 
 PERIOD = 1030.0 / 299.792458
@@ -29,7 +28,11 @@ def test_energy_is_conserved_for_arbitrary_delays(n):
     rng = np.random.default_rng(n)
     # small, medium and walk-off sized errors (up to 400 fs per stage, t0 = 567 fs)
     d = np.concatenate(
-        [rng.uniform(-5, 5, (20, n)), rng.uniform(-100, 100, (20, n)), rng.uniform(-400, 400, (8, n))]
+        [
+            rng.uniform(-5, 5, (20, n)),
+            rng.uniform(-100, 100, (20, n)),
+            rng.uniform(-400, 400, (8, n)),
+        ]
     )
     ps = PulseStacker(n, dtype=np.float64, quadrature_points=16)
     out = ps.evaluate(d, rejected_port=True)
@@ -97,8 +100,7 @@ def test_one_stage_is_two_beam_interference():
     # far walk-off (900 fs = 1.6 t0) needs more quadrature points than the default 6
     far = np.array([900.0, 901.7, 1500.0])
     fine = PulseStacker(1, dtype=np.float64, quadrature_points=24)
-    np.testing.assert_allclose(fine.power(far[:, None]), _two_beam_power_fine_grid(far),
-                               atol=2e-5)
+    np.testing.assert_allclose(fine.power(far[:, None]), _two_beam_power_fine_grid(far), atol=2e-5)
     # Half a period off: destructive interference, nearly no light through the polarizer.
     half = ps.evaluate(np.array([[PERIOD / 2]]))
     assert half.power[0] < 1e-4 and half.rejected_energy[0] > 0.999
@@ -167,8 +169,9 @@ def test_batched_equals_unbatched_and_float32_matches_float64():
     batch = fast.evaluate(d)
     rows = [fast.evaluate(row) for row in d]
     np.testing.assert_allclose([r.power for r in rows], batch.power, atol=1e-5)
-    np.testing.assert_allclose(np.stack([r.slot_energies for r in rows]), batch.slot_energies,
-                               atol=1e-5)
+    np.testing.assert_allclose(
+        np.stack([r.slot_energies for r in rows]), batch.slot_energies, atol=1e-5
+    )
     np.testing.assert_allclose(batch.power, ref.evaluate(d).power, atol=1e-5)
     # a batch of one and of two (small path vs batched path) agree with the reference
     np.testing.assert_allclose(fast.power(d[:1]), ref.power(d[:1]), atol=1e-9)

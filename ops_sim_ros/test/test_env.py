@@ -1,0 +1,102 @@
+"""The in-process Gymnasium environment (ops_sim_ros.env.OpsEnv)."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import ops_sim_ros
+from ops_sim_ros import OpsEnv
+
+
+def test_gymnasium_env_checker():
+    from gymnasium.utils.env_checker import check_env
+
+    check_env(gym.make("ops_sim_ros/PulseStacking-v0", stage=3).unwrapped, skip_render_check=True)
+    check_env(OpsEnv(stage=2, mode="hard", action_type="absolute"), skip_render_check=True)
+
+
+def test_sb3_env_checker():
+    from stable_baselines3.common.env_checker import check_env
+
+    check_env(OpsEnv(stage=3, mode="easy"), warn=True)
+
+
+def test_registered_once_and_figure5_example_runs():
+    ops_sim_ros._register()  # a second registration must be harmless
+    env = gym.make("ops_sim_ros/PulseStacking-v0", stage=5, mode="medium")
+    env.reset(seed=0)
+    done, steps = False, 0
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        done = terminated or truncated
+        steps += 1
+        assert not terminated
+        assert reward == pytest.approx(-((1 - info["power"]) ** 2))
+    assert steps == 200
+    assert obs in env.observation_space
+    assert set(info) >= {"power", "delays_fs", "setpoints_fs"}
+
+
+def test_spaces_and_info():
+    env = OpsEnv(stage=4)
+    assert env.action_space.shape == (4,) and env.action_space.low.min() == -1.0
+    assert env.observation_space.shape == (15 + 1 + 4,)
+    obs, info = env.reset(seed=1)
+    assert 0.0 <= info["power"] <= 1.0
+    assert obs[15] == pytest.approx(info["power"], abs=1e-6)
+    _, _, _, _, info2 = env.step(np.ones(4, dtype=np.float32))
+    step = info2["setpoints_fs"] - info["setpoints_fs"]
+    np.testing.assert_allclose(step, env.config.max_step_fs)
+    noise = info2["delays_fs"] - info2["setpoints_fs"]
+    assert 0 < np.abs(noise).max() < 6 * env.config.jitter_sigma_fs
+
+
+def test_same_seed_same_episode_and_different_seed_differs():
+    def episode(seed):
+        env = OpsEnv(stage=3, mode="hard")
+        obs, _ = env.reset(seed=seed)
+        out = [obs]
+        for _ in range(20):
+            out.append(env.step(np.full(3, 0.3, dtype=np.float32))[0])
+        return np.stack(out)
+
+    np.testing.assert_array_equal(episode(11), episode(11))
+    assert not np.array_equal(episode(11), episode(12))
+
+
+def test_episode_truncation_length_and_absolute_actions():
+    env = OpsEnv(stage=2, max_episode_steps=7, action_type="absolute")
+    env.reset(seed=0)
+    for i in range(7):
+        _, _, term, trunc, info = env.step(np.array([0.5, -1.0], dtype=np.float32))
+        assert not term and trunc == (i == 6)
+    np.testing.assert_allclose(
+        info["setpoints_fs"], np.array([0.5, -1.0]) * env.config.optical_period_fs
+    )
+
+
+def test_easy_start_is_better_than_medium_on_average():
+    powers = {}
+    for mode in ("easy", "medium"):
+        env = OpsEnv(stage=3, mode=mode)
+        powers[mode] = np.mean([env.reset(seed=s)[1]["power"] for s in range(40)])
+    assert powers["easy"] > powers["medium"] + 0.2
+
+
+def test_render_rgb_array_draws_the_trace():
+    env = OpsEnv(stage=3, render_mode="rgb_array")
+    env.reset(seed=0)
+    img = env.render()
+    assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
+    assert img.std() > 10  # something was drawn
+    assert env.trace().shape == (7 * env.config.samples_per_slot,)
+    assert OpsEnv(stage=3).render() is None
+
+
+def test_invalid_arguments():
+    with pytest.raises(ValueError, match="action_type"):
+        OpsEnv(action_type="delta")
+    with pytest.raises(ValueError, match="mode must be one of"):
+        OpsEnv(mode="impossible")
+    with pytest.raises(ValueError, match="render_mode"):
+        OpsEnv(render_mode="ascii")

@@ -1,0 +1,96 @@
+"""Batched vector environments against their libraries' conventions."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from ops_sim_ros.vec_env import OpsVectorEnv
+
+from ops_sim_ros import OpsEnv
+
+
+def test_gymnasium_vector_env_matches_sync_vector_env_layout():
+    n, steps = 3, 5
+    ours = OpsVectorEnv(num_envs=n, stage=2, max_episode_steps=steps, seed=0)
+    ref = SyncVectorEnv(
+        [lambda: OpsEnv(stage=2, max_episode_steps=steps) for _ in range(n)],
+        autoreset_mode=AutoresetMode.SAME_STEP,
+    )
+    assert ours.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+    assert ours.single_observation_space == ref.single_observation_space
+    assert ours.observation_space == ref.observation_space
+    assert ours.action_space == ref.action_space
+    o1, i1 = ours.reset(seed=1)
+    o2, i2 = ref.reset(seed=1)
+    assert o1.shape == o2.shape and o1.dtype == o2.dtype
+    assert set(i1) == set(i2)
+    act = np.zeros((n, 2), dtype=np.float32)
+    for k in range(steps):
+        r1 = ours.step(act)
+        r2 = ref.step(act)
+        for a, b in zip(r1[:4], r2[:4], strict=True):
+            assert np.shape(a) == np.shape(b) and np.asarray(a).dtype == np.asarray(b).dtype
+        assert set(r1[4]) == set(r2[4]), k
+    obs, _rew, term, trunc, info = r1
+    assert trunc.all() and not term.any()
+    assert info["_final_obs"].all()
+    assert all(o in ours.single_observation_space for o in info["final_obs"])
+    assert set(info["final_info"]) == set(r2[4]["final_info"])
+    assert obs in ours.observation_space
+    # after the autoreset the observations are new episodes: set-points back in the initial range
+    sp = info["setpoints_fs"] / ours.config.optical_period_fs
+    assert np.abs(sp).max() <= ours.config.initial_range_cycles
+    ref.close()
+
+
+def test_vector_env_seeding_and_batched_equals_single():
+    a = OpsVectorEnv(num_envs=4, stage=3, mode="hard")
+    b = OpsVectorEnv(num_envs=4, stage=3, mode="hard")
+    oa, _ = a.reset(seed=3)
+    ob, _ = b.reset(seed=3)
+    np.testing.assert_array_equal(oa, ob)
+    act = np.random.default_rng(0).uniform(-1, 1, (4, 3)).astype(np.float32)
+    ra, rb = a.step(act), b.step(act)
+    np.testing.assert_array_equal(ra[0], rb[0])
+    # the batch's physics equals a one-env evaluation of the same applied delays
+    from ops_sim_ros.physics import PulseStacker
+
+    ps = PulseStacker(3)
+    for i in range(4):
+        assert ra[4]["power"][i] == pytest.approx(ps.power(ra[4]["delays_fs"][i]), abs=1e-5)
+
+
+def test_sb3_vec_env_contract_and_ppo_learns_without_error():
+    from ops_sim_ros.vec_env import OpsSb3VecEnv
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecEnv
+
+    venv = OpsSb3VecEnv(num_envs=4, stage=2, max_episode_steps=6)
+    assert isinstance(venv, VecEnv)
+    venv.seed(3)
+    obs = venv.reset()
+    assert obs.shape == (4, 3 + 1 + 2)
+    for _ in range(6):
+        obs, rew, dones, infos = venv.step(np.zeros((4, 2), dtype=np.float32))
+        assert rew.shape == (4,) and dones.dtype == bool and len(infos) == 4
+    assert dones.all()
+    for info in infos:
+        assert info["TimeLimit.truncated"] is True
+        assert info["terminal_observation"].shape == (6,)
+    assert venv.get_attr("stage") == [2] * 4
+    assert venv.env_is_wrapped(gym.Wrapper) == [False] * 4
+    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    model.learn(total_timesteps=256)
+    assert model.num_timesteps >= 256
+
+
+def test_sb3_seed_reproducible():
+    from ops_sim_ros.vec_env import OpsSb3VecEnv
+
+    def run():
+        v = OpsSb3VecEnv(num_envs=2, stage=3, mode="hard")
+        v.seed(9)
+        v.reset()
+        return v.step(np.full((2, 3), 0.2, dtype=np.float32))[0]
+
+    np.testing.assert_array_equal(run(), run())
