@@ -36,6 +36,10 @@ class ParameterError(ValueError):
     """A node parameter has a value the node cannot run with."""
 
 
+class NodeFatalError(RuntimeError):
+    """The node met a condition it cannot run on (e.g. a model for another stage)."""
+
+
 def float_array_msg(values, labels: Sequence[str] = ("stage",)) -> Float32MultiArray:
     """A Float32MultiArray with its layout filled (one dimension per label, row-major)."""
     arr = np.asarray(values, dtype=np.float32)
@@ -79,7 +83,8 @@ def run_node(make_node: Callable[[], Node], args=None) -> int:
     """The ``main()`` of every node: init, spin, clean exit on Ctrl-C / SIGTERM.
 
     A :class:`ParameterError` raised while building the node stops it before it spins, with the
-    message on stderr and exit code 2. Returns the process exit code.
+    message on stderr and exit code 2; a :class:`NodeFatalError` raised while spinning stops it
+    with the message and exit code 1. Returns the process exit code.
     """
     rclpy.init(args=args)
     node = None
@@ -92,6 +97,9 @@ def run_node(make_node: Callable[[], Node], args=None) -> int:
     except ParameterError as exc:
         print(f"[ERROR] invalid parameter: {exc}", file=sys.stderr, flush=True)
         code = 2
+    except NodeFatalError as exc:
+        print(f"[ERROR] {exc}", file=sys.stderr, flush=True)
+        code = 1
     finally:
         if node is not None:
             node.destroy_node()

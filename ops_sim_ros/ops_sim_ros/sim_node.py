@@ -121,8 +121,8 @@ class SimNode(Node):
         self.create_subscription(Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset)
 
-        self._command = self._sim.setpoints_fs[0].copy()  # latest accepted set-points
         self._result = self._sim.reset()
+        self._command = self._sim.setpoints_fs[0].copy()  # latest accepted set-points
         self._steps = 0
         self._episodes = 1
         self._timer = None

@@ -1,0 +1,169 @@
+"""The learned-policy runner ``ops_policy``: a trained stable-baselines3 model closing the loop.
+
+``ros2 run ops_controller_ros policy --ros-args -p model:=DIR`` loads ``DIR/model.zip`` and the
+metadata saved beside it by training, builds each observation with the same function as the
+in-process environment (``ops_sim_ros.observation.build_observation``) from the simulator's trace,
+power and set-points, and publishes new set-points: current set-points + action * max step (the
+policy acts in increments; absolute-action models map [-1, 1] to their trained range).
+
+A step's readings are used only once the set-points they report equal the last command (the
+simulator publishes ``ops/delays`` first), as in the SPGD node. A model trained for another stage
+than the simulator runs stops the node with a clear error (exit code 1).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from ops_sim_ros.config import OpsConfig
+from ops_sim_ros.node_params import ParamSpec, declare_all
+from ops_sim_ros.observation import ObservationSpec, build_observation, pulse_energies_from_trace
+from ops_sim_ros.ros_interface import (
+    QOS_RELIABLE,
+    TOPIC_DELAY_CMD,
+    TOPIC_DELAYS,
+    TOPIC_INTENSITY,
+    TOPIC_POWER,
+    NodeFatalError,
+    ParameterError,
+    float_array_msg,
+    run_node,
+    trace_from_msg,
+)
+from rclpy.node import Node
+from std_msgs.msg import Float32, Float32MultiArray
+
+from .policy_io import PolicyLoadError, check_stage, load_policy
+
+PARAMS = [
+    ParamSpec("model", "", "trained model: the training output DIR or DIR/model.zip"),
+    ParamSpec(
+        "timeout_s",
+        1.0,
+        "re-send a command unanswered for this long",
+        low=0.0,
+        high=3600.0,
+        low_exclusive=True,
+    ),
+    ParamSpec(
+        "log_period_s",
+        1.0,
+        "period of the progress log line",
+        low=0.0,
+        high=3600.0,
+        low_exclusive=True,
+    ),
+]
+_MATCH_TOL_FS = 1e-3
+
+
+class PolicyNode(Node):
+    def __init__(self):
+        super().__init__("ops_policy")
+        v = declare_all(self, PARAMS)
+        if not v["model"]:
+            raise ParameterError(
+                "model must be the path of a trained model (the training output directory or "
+                "its model.zip), e.g. --ros-args -p model:=runs/sac_n3_easy"
+            )
+        try:
+            self._policy = load_policy(v["model"])
+        except PolicyLoadError as exc:
+            raise ParameterError(f"model: {exc}") from None
+        meta = self._policy.metadata
+        self._spec = ObservationSpec.from_dict(meta["observation_spec"])
+        config = OpsConfig.from_dict(meta["config"]) if meta.get("config") else None
+        self._increment = self._policy.action_type == "increment"
+        self._action_scale = (
+            self._policy.max_step_fs
+            if self._increment
+            else (config.absolute_action_range_fs if config else self._policy.max_step_fs)
+        )
+        self._timeout = v["timeout_s"]
+
+        self._pending: np.ndarray | None = None
+        self._sent_at = 0.0
+        self._matched = False
+        self._delays: np.ndarray | None = None
+        self._trace: tuple[np.ndarray, int] | None = None
+        self._steps = 0
+        self._last_power = float("nan")
+
+        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_RELIABLE)
+        self.create_subscription(Float32MultiArray, TOPIC_INTENSITY, self._on_trace, QOS_RELIABLE)
+        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
+        self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
+        self.create_timer(0.05, self._watchdog)
+        self.create_timer(v["log_period_s"], self._log_progress)
+        self.get_logger().info(
+            f"loaded {self._policy.algo.upper()} model for stage {self._policy.stage} "
+            f"({self._policy.mode} mode) from {self._policy.path}; waiting for the simulator"
+        )
+
+    def _on_delays(self, msg: Float32MultiArray):
+        delays = np.asarray(msg.data, dtype=np.float64)
+        if delays.size == 0 or not np.all(np.isfinite(delays)):
+            return
+        if self._delays is None:
+            try:
+                check_stage(self._policy, delays.size)
+            except PolicyLoadError as exc:
+                raise NodeFatalError(str(exc)) from None
+            self.get_logger().info("simulator found: running the policy")
+        self._delays = delays
+        self._trace = None
+        self._matched = self._pending is None or np.allclose(
+            delays, self._pending, rtol=0.0, atol=_MATCH_TOL_FS
+        )
+
+    def _on_trace(self, msg: Float32MultiArray):
+        if self._matched:
+            self._trace = trace_from_msg(msg)
+
+    def _on_power(self, msg: Float32):
+        if not self._matched or self._trace is None or not np.isfinite(msg.data):
+            return
+        trace, samples = self._trace
+        energies = pulse_energies_from_trace(trace, samples)
+        if energies.shape[-1] != self._spec.num_slots:
+            raise NodeFatalError(
+                f"the simulator's trace has {energies.shape[-1]} pulse slots, the model expects "
+                f"{self._spec.num_slots}"
+            )
+        obs = build_observation(self._spec, energies, float(msg.data), self._delays)
+        action = np.asarray(self._policy.predict(obs), dtype=np.float64).reshape(-1)
+        if self._increment:
+            command = self._delays + action * self._action_scale
+        else:
+            command = action * self._action_scale
+        self._last_power = float(msg.data)
+        self._steps += 1
+        self._trace = None
+        self._send(command)
+
+    def _send(self, command: np.ndarray):
+        self._pending = command
+        self._matched = False
+        self._sent_at = time.monotonic()
+        self._pub_cmd.publish(float_array_msg(command))
+
+    def _watchdog(self):
+        if self._pending is not None and time.monotonic() - self._sent_at > self._timeout:
+            self.get_logger().warning(
+                "no reading for the last command: re-sending (simulator slow or restarted?)",
+                throttle_duration_sec=5.0,
+            )
+            self._send(self._pending)
+
+    def _log_progress(self):
+        if self._steps:
+            self.get_logger().info(f"step {self._steps}: P_N/P_max = {self._last_power:.4f}")
+
+
+def main(args=None):
+    raise SystemExit(run_node(PolicyNode, args))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# The main job, headless: the simulator (N = 5, easy mode) and the SPGD-PID controller close the
+# loop over DDS for a few seconds while the monitor records the trace before and after.
+# Output: runs/demo/monitor.png (before / after / P_N history) and the controller's log lines.
+set -eo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+# shellcheck disable=SC1091
+source setup.bash
+
+OUT="${DEMO_OUT:-runs/demo}"
+SECONDS_TO_RUN="${DEMO_SECONDS:-6}"
+mkdir -p "$OUT"
+rm -f "$OUT"/*.log "$OUT/monitor.png"
+# A domain of its own, so the demo does not meet other ROS 2 programs on this network.
+export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$((RANDOM % 90 + 10))}"
+
+pids=()
+stop_all() {
+  for pid in "${pids[@]}"; do kill -INT "$pid" 2>/dev/null || true; done
+  for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
+}
+trap stop_all EXIT
+
+# wait_for_line FILE PATTERN SECONDS: wait until a process has logged PATTERN.
+wait_for_line() {
+  local deadline=$((SECONDS + $3))
+  until grep -q "$2" "$1" 2>/dev/null; do
+    if ((SECONDS > deadline)); then
+      echo "[demo] timed out waiting for '$2' in $1:" >&2
+      cat "$1" >&2
+      exit 1
+    fi
+    sleep 0.1
+  done
+}
+
+echo "[demo] ROS_DOMAIN_ID=$ROS_DOMAIN_ID; starting the simulator (stage 5, easy mode)"
+ros2 run ops_sim_ros sim --ros-args -p stage:=5 -p mode:=easy -p seed:=7 >"$OUT/sim.log" 2>&1 &
+pids+=($!)
+ros2 run ops_sim_ros monitor --ros-args -p save:="$OUT/monitor.png" >"$OUT/monitor.log" 2>&1 &
+pids+=($!)
+wait_for_line "$OUT/monitor.log" "first trace received" 30
+grep -o "first trace received.*" "$OUT/monitor.log" | sed 's/^/[demo] before control: /'
+
+echo "[demo] starting the SPGD-PID controller for ${SECONDS_TO_RUN} s"
+ros2 run ops_controller_ros spgd --ros-args -p seed:=7 -p log_period_s:=0.5 \
+  >"$OUT/spgd.log" 2>&1 &
+pids+=($!)
+wait_for_line "$OUT/spgd.log" "closing the loop" 30
+sleep "$SECONDS_TO_RUN"
+grep -o "iteration .*" "$OUT/spgd.log" | sed 's/^/[demo] /'
+
+stop_all
+trap - EXIT
+cat "$OUT/monitor.log" | grep -o "wrote .*" | sed 's/^/[demo] /'
+[ -f "$OUT/monitor.png" ] || { echo "[demo] FAILED: no $OUT/monitor.png" >&2; exit 1; }
+echo "[demo] done: picture in $OUT/monitor.png, logs in $OUT/"

@@ -1,0 +1,44 @@
+"""Fixtures of the integration tests: isolation and real processes.
+
+Isolation: each test module gets its own ROS_DOMAIN_ID (unique within this pytest process, and
+offset by the pid so that two test runs on one machine rarely meet), and DDS discovery is kept on
+localhost. ``procs`` starts commands the way a user would (``ros2 run``) and stops every one of
+them (SIGINT, then SIGKILL) when the test ends; see ros_testing.py.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+
+import pytest
+from ros_testing import ProcessGroup
+
+_domains = itertools.count()
+
+
+def _domain_for_next_module() -> int:
+    # Domains 1..100; 0 (the default) is left to whatever else runs on the machine.
+    return 1 + (os.getpid() * 7 + 13 * next(_domains)) % 100
+
+
+@pytest.fixture(scope="module", autouse=True)
+def ros_domain():
+    """A ROS_DOMAIN_ID of this module's own, also seen by everything it starts."""
+    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    domain = _domain_for_next_module()
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    yield domain
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+
+
+@pytest.fixture
+def procs(tmp_path):
+    group = ProcessGroup(tmp_path)
+    yield group
+    group.stop_all()
