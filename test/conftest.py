@@ -42,3 +42,12 @@ def procs(tmp_path):
     group = ProcessGroup(tmp_path)
     yield group
     group.stop_all()
+
+
+@pytest.fixture
+def observer():
+    from ros_testing import TopicObserver
+
+    obs = TopicObserver()
+    yield obs
+    obs.close()

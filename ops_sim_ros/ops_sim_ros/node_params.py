@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 
 from .ros_interface import ParameterError
 
@@ -37,7 +36,7 @@ class ParamSpec:
         if kind == "bool":
             return "true or false"
         if self.low is not None and self.high is not None:
-            return f"{kind} in [{self.low}, {self.high}]"
+            return f"{kind} in {'(' if self.low_exclusive else '['}{self.low}, {self.high}]"
         if self.low is not None:
             return f"{kind} {'>' if self.low_exclusive else '>='} {self.low}"
         return kind
@@ -102,8 +101,3 @@ def declare_all(node: Node, specs: list[ParamSpec]) -> dict:
             raise ParameterError(problem)
         values[spec.name] = value
     return values
-
-
-def parameter_value(param: Parameter):
-    """A runtime parameter's plain Python value (ints promoted where a float is declared)."""
-    return param.value

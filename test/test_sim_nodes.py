@@ -1,0 +1,214 @@
+"""The simulator, SPGD and monitor nodes as real processes over DDS, started with `ros2 run`."""
+
+from __future__ import annotations
+
+import math
+import signal
+
+import numpy as np
+import pytest
+from ros_testing import assert_no_traceback, run_ros2
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
+
+
+def start_sim(procs, *params, name="sim"):
+    args = ["run", "ops_sim_ros", "sim", "--ros-args"]
+    for p in params:
+        args += ["-p", p]
+    return procs.ros2(*args, name=name)
+
+
+def test_sim_publishes_every_output_at_the_configured_rate(procs, observer):
+    start_sim(procs, "stage:=3", "rate_hz:=50.0", "seed:=1", "samples_per_slot:=4")
+    observer.wait_count("reward", 10)
+    start = observer.count("power")
+    t0 = observer.messages["power"][-1][0]
+    observer.wait_count("power", start + 100, timeout=20)
+    t1 = observer.messages["power"][start + 99][0]
+    rate = 99 / (t1 - observer.messages["power"][start][0])
+    assert 40.0 < rate < 60.0, rate
+    assert t1 > t0
+    delays = observer.last("delays")
+    assert len(delays) == 3
+    msg = observer.messages["intensity"][-1][2]
+    assert [d.label for d in msg.layout.dim] == ["slot", "sample"]
+    assert msg.layout.dim[1].size == 4
+    assert len(msg.data) == msg.layout.dim[0].size * 4
+    trace = np.asarray(msg.data)
+    assert np.all(np.isfinite(trace)) and trace.min() >= -1e-6 and trace.max() <= 1.0 + 1e-6
+    powers = np.asarray(observer.values("power"))
+    rewards = np.asarray(observer.values("reward"))
+    assert np.all((powers >= 0) & (powers <= 1))
+    n = min(len(powers), len(rewards)) - 1
+    np.testing.assert_allclose(rewards[:n], -((1 - powers[:n]) ** 2), atol=1e-5)
+
+
+def test_topic_echo_once_shows_the_trace(procs):
+    start_sim(procs, "stage:=2", "samples_per_slot:=2")
+    out = run_ros2("topic", "echo", "--once", "/ops/intensity", timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "layout:" in out.stdout and "label: slot" in out.stdout and "label: sample" in out.stdout
+    assert "data:" in out.stdout
+    assert out.stdout.rstrip().endswith("---")
+
+
+def test_spgd_closes_the_loop_in_easy_mode_at_stage_3(procs, observer):
+    start_sim(procs, "stage:=3", "mode:=easy", "seed:=5", "rate_hz:=200.0")
+    spgd = procs.ros2(
+        "run", "ops_controller_ros", "spgd", "--ros-args", "-p", "seed:=5", name="spgd"
+    )
+    spgd.wait_for("closing the loop", timeout=30)
+    observer.wait_until(
+        lambda: (
+            len(observer.values("power")) > 50 and np.mean(observer.values("power")[-40:]) >= 0.95
+        ),
+        timeout=40,
+        what="P_N/P_max >= 0.95 over the last 40 readings",
+    )
+    assert_no_traceback(spgd.output)
+
+
+def test_lockstep_gives_each_command_exactly_its_own_outputs(procs, observer):
+    start_sim(procs, "stage:=3", "lockstep:=true", "seed:=2", "mode:=easy")
+    observer.wait_for_subscriber()
+    rng = np.random.default_rng(0)
+    for k in range(30):
+        before = {name: observer.count(name) for name in observer.messages}
+        command = rng.uniform(-2.0, 2.0, size=3)
+        observer.send(command)
+        for name in observer.messages:
+            observer.wait_count(name, before[name] + 1, timeout=10)
+        # The delays reported are this command's, and exactly one group came back.
+        np.testing.assert_allclose(observer.last("delays"), command, atol=1e-5)
+        for name in observer.messages:
+            assert observer.count(name) == before[name] + 1, (k, name)
+    # Nothing more arrives without a command: no timer in lockstep.
+    n = observer.count("power")
+    observer.wait_until(lambda: True, timeout=1)
+    with pytest.raises(AssertionError):
+        observer.wait_count("power", n + 1, timeout=0.5)
+    # Per step the delays come first.
+    assert observer.order[-4] == "delays"
+
+
+def test_bad_commands_are_rejected_and_the_state_kept(procs, observer):
+    sim = start_sim(procs, "stage:=2", "lockstep:=true", "seed:=3")
+    observer.wait_for_subscriber()
+    observer.send([0.5, -0.25])
+    observer.wait_count("delays", 1)
+    for bad in ([1.0, 2.0, 3.0], [math.nan, 0.0], [0.0, math.inf], []):
+        observer.send(bad)
+    sim.wait_for("rejected delay command: expected 2 delays", timeout=10)
+    # The state is unchanged: the next good command is the next (and only) step.
+    observer.send([0.1, 0.2])
+    observer.wait_count("delays", 2)
+    assert observer.count("delays") == 2
+    np.testing.assert_allclose(observer.last("delays"), [0.1, 0.2], atol=1e-6)
+    # Beyond the actuator range: clipped, with a warning.
+    observer.send([1e6, -1e6])
+    observer.wait_count("delays", 3)
+    limit = observer.last("delays")[0]
+    assert 0 < limit < 1e6 and observer.last("delays")[1] == pytest.approx(-limit)
+    sim.wait_for("beyond the actuator range", timeout=10)
+    # Throttled: four bad commands in a burst give one warning line.
+    assert sim.output.count("rejected delay command") == 1
+    assert_no_traceback(sim.output)
+
+
+@pytest.mark.parametrize(
+    "param, words",
+    [
+        ("stage:=0", ["stage", "[1, 10]"]),
+        ("mode:=extreme", ["mode", "easy, medium, hard", "extreme"]),
+        ("rate_hz:=0.0", ["rate_hz", "(0.0, 100000.0]"]),
+        ("split:=validation", ["split", "train, test"]),
+        ("stage:=three", ["stage"]),
+    ],
+)
+def test_bad_parameters_stop_the_sim_before_it_spins(procs, param, words):
+    sim = start_sim(procs, param)
+    assert sim.wait_exit(30) == 2
+    out = sim.output
+    assert "invalid parameter" in out
+    for w in words:
+        assert w in out, (w, out)
+    assert_no_traceback(out)
+
+
+def test_parameters_change_live_and_stage_is_refused(procs, observer):
+    start_sim(procs, "stage:=2", "mode:=easy")
+    observer.wait_count("delays", 1)
+    refused = run_ros2("param", "set", "/ops_sim", "stage", "4")
+    assert "stage cannot change while the simulator runs" in refused.stdout + refused.stderr
+    bad = run_ros2("param", "set", "/ops_sim", "mode", "extreme")
+    assert "mode must be one of easy, medium, hard" in bad.stdout + bad.stderr
+    ok = run_ros2("param", "set", "/ops_sim", "mode", "hard")
+    assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
+    got = run_ros2("param", "get", "/ops_sim", "mode")
+    assert "hard" in got.stdout
+
+
+def test_reset_service_starts_a_new_episode(procs, observer):
+    start_sim(procs, "stage:=3", "lockstep:=true", "seed:=4", "mode:=medium")
+    observer.wait_for_subscriber()
+    out = run_ros2("service", "call", "/ops/reset", "std_srvs/srv/Trigger")
+    assert out.returncode == 0, out.stderr
+    assert "success=True" in out.stdout and "episode 2" in out.stdout
+    observer.wait_count("delays", 1)
+    first = observer.last("delays")
+    run_ros2("service", "call", "/ops/reset", "std_srvs/srv/Trigger")
+    observer.wait_count("delays", 2)
+    assert observer.last("delays") != first  # a new random initial state
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_nodes_exit_cleanly_on_signals(procs, tmp_path, sig):
+    sim = start_sim(procs, "stage:=2", "mode:=easy")
+    spgd = procs.ros2("run", "ops_controller_ros", "spgd", name="spgd")
+    monitor = procs.ros2(
+        "run",
+        "ops_sim_ros",
+        "monitor",
+        "--ros-args",
+        "-p",
+        f"save:={tmp_path / 'm.png'}",
+        name="monitor",
+    )
+    spgd.wait_for("closing the loop")
+    monitor.wait_for("first trace received")
+    for proc in (spgd, monitor, sim):
+        proc.signal(sig)
+        assert proc.wait_exit(20) == 0, proc.output
+        assert_no_traceback(proc.output)
+    assert (tmp_path / "m.png").stat().st_size > 10_000
+
+
+def test_spgd_survives_a_simulator_restart(procs, observer):
+    sim = start_sim(procs, "stage:=2", "mode:=easy", "seed:=8", name="sim_a")
+    spgd = procs.ros2(
+        "run", "ops_controller_ros", "spgd", "--ros-args", "-p", "timeout_s:=0.3", name="spgd"
+    )
+    spgd.wait_for("closing the loop")
+    sim.stop()
+    spgd.wait_for("re-sending", timeout=20)
+    start_sim(procs, "stage:=3", "mode:=easy", "seed:=9", name="sim_b")
+    spgd.wait_for("now has 3 stages", timeout=30)
+    n = observer.count("power")
+    observer.wait_until(
+        lambda: (
+            observer.count("power") > n + 50 and np.mean(observer.values("power")[-30:]) >= 0.95
+        ),
+        timeout=40,
+        what="the loop closed again on the restarted simulator",
+    )
+    assert_no_traceback(spgd.output)
+
+
+def test_monitor_without_display_or_file_says_how_to_record(procs):
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    mon = procs.ros2("run", "ops_sim_ros", "monitor", name="monitor", env=env)
+    assert mon.wait_exit(30) == 2
+    assert "save:=" in mon.output
