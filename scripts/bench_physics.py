@@ -1,0 +1,124 @@
+#!/usr/bin/env python3
+"""Speed of the physics and environments: env-steps/s for N = 1..8, single OpsEnv.step and a
+batch of 1024 envs (BatchedSimulation.step_increments + build_observation, i.e. the vector env's
+work per step), plus peak memory. Writes its table into docs/benchmarks.md (own section).
+
+Usage: PYTHONPATH=ops_sim_ros python scripts/bench_physics.py [--batch 1024] [--no-write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import platform
+import resource
+import sys
+import time
+
+import numpy as np
+from ops_sim_ros.observation import build_observation
+
+from ops_sim_ros import OpsEnv
+
+SECTION = "## Physics and environment speed"
+PAPER = {5: 340.0, 7: 27.0}
+
+
+def rate(fn, min_time=0.5, min_calls=20):
+    fn()
+    calls, start = 0, time.perf_counter()
+    while True:
+        fn()
+        calls += 1
+        elapsed = time.perf_counter() - start
+        if elapsed >= min_time and calls >= min_calls:
+            return calls / elapsed
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--batch", type=int, default=1024)
+    ap.add_argument("--stages", default="1,2,3,4,5,6,7,8")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    rows = []
+    for n in [int(s) for s in args.stages.split(",")]:
+        env = OpsEnv(stage=n, mode="hard")
+        env.reset(seed=0)
+        act = np.zeros(n, dtype=np.float32)
+        single = max(rate(lambda e=env, a=act: e.step(a)) for _ in range(3))
+        venv = OpsEnv(stage=n, mode="hard")  # for its observation spec / config
+        from ops_sim_ros.simulation import BatchedSimulation
+
+        sim = BatchedSimulation(venv.config, num_envs=args.batch, seed=0)
+        sim.reset()
+        acts = np.random.default_rng(0).uniform(-1, 1, (args.batch, n))
+
+        def batched(sim=sim, acts=acts, spec=venv.obs_spec):
+            r = sim.step_increments(acts)
+            build_observation(spec, r.pulse_energies, r.power, r.setpoints_fs)
+
+        batch_rate = max(rate(batched, min_time=1.0) for _ in range(2)) * args.batch
+        peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        rows.append((n, 1e6 / single, single, batch_rate, peak_mb))
+        print(
+            f"N={n}: OpsEnv.step {1e6 / single:8.1f} us ({single:9.0f} steps/s); "
+            f"batched {args.batch}: {batch_rate:12.0f} env-steps/s; peak RSS {peak_mb:.0f} MiB",
+            flush=True,
+        )
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    threads = "".join(
+        f"{k}={os.environ[k]} "
+        for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")
+        if k in os.environ
+    )
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    lines = [
+        SECTION,
+        "",
+        f"Command: `{threads}PYTHONPATH=ops_sim_ros python scripts/bench_physics.py` "
+        f"(batch {args.batch}, mode hard, float32 physics).",
+        f"Machine: {cpu}, {os.cpu_count()} cores, Python {sys.version.split()[0]}, "
+        f"numpy {np.__version__}. Single env: `OpsEnv.step` (best of 3 runs); batched: "
+        "`BatchedSimulation.step_increments` + `build_observation` for the whole batch "
+        "(the vector env's work per step). Peak RSS is the process maximum so far. "
+        f"1-minute load average at the end of the run: {load:.2f} (other jobs share this "
+        "machine; numbers are noisy by +-30 %).",
+        "",
+        "| N | OpsEnv.step (us) | single env steps/s | batched env-steps/s | vs paper (~340/s N=5, "
+        "27/s N=7) | peak RSS (MiB) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for n, us, single, br, mb in rows:
+        vs = (
+            f"{br / PAPER[n]:,.0f}x batched, {single / PAPER[n]:,.0f}x single" if n in PAPER else ""
+        )
+        lines.append(f"| {n} | {us:.1f} | {single:,.0f} | {br:,.0f} | {vs} | {mb:.0f} |")
+    table = "\n".join(lines) + "\n"
+    print(table)
+    if args.no_write:
+        return
+    path = pathlib.Path("docs/benchmarks.md")
+    text = path.read_text() if path.exists() else "# Benchmarks\n\n"
+    if SECTION in text:
+        head, rest = text.split(SECTION, 1)
+        nxt = rest.find("\n## ")
+        tail = rest[nxt + 1 :] if nxt >= 0 else ""
+        text = head + table + ("\n" + tail if tail else "")
+    else:
+        text = text.rstrip("\n") + "\n\n" + table
+    path.write_text(text)
+    print("updated", path)
+
+
+if __name__ == "__main__":
+    main()
