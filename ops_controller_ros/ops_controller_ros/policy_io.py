@@ -1,0 +1,307 @@
+"""Reading and writing trained policies: ``model.zip`` (stable-baselines3) + ``metadata.json``.
+
+The one reader/writer of model directories, shared by the training CLI (``ops_gym_bridge train``),
+the evaluation CLI and the policy runner node. Pure Python: no ``rclpy``.
+
+A model directory holds::
+
+    DIR/model.zip        the stable-baselines3 model (algo.save)
+    DIR/metadata.json    what a runner needs besides the network (schema below)
+
+Metadata (``metadata.json``, ``format_version`` 1)::
+
+    format_version    1
+    algo              "ppo" | "td3" | "sac"
+    stage, mode, split   the environment it was trained on
+    action_type       "increment": actions in [-1, 1]^N times max_step_fs added to the set-points
+    max_step_fs       the actuator's largest set-point change per step (fs)
+    observation_spec  ObservationSpec.to_dict() of ops_sim_ros.observation
+    observation_shape, action_shape   shapes of the spaces (lists of ints)
+    config            OpsConfig.to_dict() of the training environment
+    normalization     null, or {"obs_mean": [...], "obs_var": [...], "clip_obs": float,
+                      "epsilon": float} (VecNormalize observation statistics)
+    versions          python, numpy, torch, stable_baselines3, gymnasium
+    command_line      the argv of the training run
+    timesteps         environment steps trained in total (over resumes)
+    seed              the training seed
+    (anything else, e.g. backend, n_envs, hyperparams, created, is kept but not required)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT_VERSION = 1
+MODEL_FILE = "model.zip"
+METADATA_FILE = "metadata.json"
+ALGOS = ("ppo", "td3", "sac")
+ACTION_TYPES = ("increment",)
+REQUIRED_KEYS = {
+    "algo": str,
+    "stage": int,
+    "mode": str,
+    "action_type": str,
+    "max_step_fs": (int, float),
+    "observation_spec": dict,
+}
+
+
+class PolicyLoadError(RuntimeError):
+    """A model directory cannot be used; the message says why and what to do."""
+
+
+def algo_class(algo: str):
+    """The stable-baselines3 class for an algorithm name."""
+    import stable_baselines3 as sb3
+
+    classes = {"ppo": sb3.PPO, "td3": sb3.TD3, "sac": sb3.SAC}
+    try:
+        return classes[algo.lower()]
+    except (KeyError, AttributeError):
+        raise PolicyLoadError(
+            f"unknown algo {algo!r} in the metadata; supported: {', '.join(ALGOS)}"
+        ) from None
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of the libraries a model depends on (recorded in the metadata)."""
+    import platform
+
+    versions = {"python": platform.python_version(), "numpy": np.__version__}
+    for name, module in (
+        ("torch", "torch"),
+        ("stable_baselines3", "stable_baselines3"),
+        ("gymnasium", "gymnasium"),
+    ):
+        try:
+            versions[name] = __import__(module).__version__
+        except Exception:  # a missing library is recorded, not fatal
+            versions[name] = "unavailable"
+    return versions
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return _jsonable(value.item())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def resolve_paths(path: str | os.PathLike) -> tuple[Path, Path]:
+    """(model.zip, metadata.json) for a model directory or a model.zip path."""
+    p = Path(path).expanduser()
+    if p.is_dir():
+        return p / MODEL_FILE, p / METADATA_FILE
+    if p.suffix == ".zip" or p.name == MODEL_FILE:
+        return p, p.parent / METADATA_FILE
+    if not p.exists() and Path(str(p) + ".zip").exists():  # SB3 style "DIR/model"
+        return Path(str(p) + ".zip"), p.parent / METADATA_FILE
+    if not p.exists():
+        raise PolicyLoadError(f"model not found: {p} (give the training --out directory)")
+    raise PolicyLoadError(
+        f"{p} is neither a model directory nor a {MODEL_FILE} (give the training --out directory)"
+    )
+
+
+def save_metadata(out_dir: str | os.PathLike, metadata: dict) -> Path:
+    """Validate and write ``out_dir/metadata.json`` atomically; returns its path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    data = {"format_version": FORMAT_VERSION, **_jsonable(dict(metadata))}
+    data.setdefault("versions", library_versions())
+    validate_metadata(data, source="metadata to save")
+    path = out / METADATA_FILE
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def read_metadata(path: str | os.PathLike) -> dict:
+    """The validated metadata of a model directory (or of the directory of a model.zip)."""
+    _, meta_path = resolve_paths(path)
+    if not meta_path.is_file():
+        raise PolicyLoadError(
+            f"metadata missing: {meta_path} not found (a model directory written by "
+            "'ros2 run ops_gym_bridge train --out DIR' has model.zip and metadata.json)"
+        )
+    try:
+        data = json.loads(meta_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise PolicyLoadError(
+            f"metadata malformed: {meta_path} is not valid JSON ({exc})"
+        ) from None
+    validate_metadata(data, source=str(meta_path))
+    return data
+
+
+def validate_metadata(data: Any, source: str = "metadata") -> None:
+    """Raise PolicyLoadError naming the first problem of a metadata dict."""
+    if not isinstance(data, dict):
+        raise PolicyLoadError(f"metadata malformed: {source} must hold a JSON object")
+    for key, kind in REQUIRED_KEYS.items():
+        if key not in data:
+            raise PolicyLoadError(f"metadata malformed: {source} lacks the key {key!r}")
+        value = data[key]
+        if not isinstance(value, kind) or isinstance(value, bool):
+            raise PolicyLoadError(
+                f"metadata malformed: {source}: {key!r} has the wrong type "
+                f"({type(value).__name__}: {value!r})"
+            )
+    if str(data["algo"]).lower() not in ALGOS:
+        raise PolicyLoadError(
+            f"unknown algo {data['algo']!r} in {source}; supported: {', '.join(ALGOS)}"
+        )
+    if data["action_type"] not in ACTION_TYPES:
+        raise PolicyLoadError(
+            f"metadata malformed: {source}: action_type {data['action_type']!r} is not one of "
+            f"{', '.join(ACTION_TYPES)}"
+        )
+    if data["stage"] < 1:
+        raise PolicyLoadError(f"metadata malformed: {source}: stage must be >= 1")
+    if not (math.isfinite(data["max_step_fs"]) and data["max_step_fs"] > 0):
+        raise PolicyLoadError(f"metadata malformed: {source}: max_step_fs must be > 0")
+    version = data.get("format_version", FORMAT_VERSION)
+    if version != FORMAT_VERSION:
+        raise PolicyLoadError(
+            f"metadata format_version {version} in {source} is not supported "
+            f"(this reader knows {FORMAT_VERSION})"
+        )
+    norm = data.get("normalization")
+    if norm is not None:
+        if not isinstance(norm, dict) or not {"obs_mean", "obs_var"} <= set(norm):
+            raise PolicyLoadError(
+                f"metadata malformed: {source}: normalization needs obs_mean and obs_var"
+            )
+        if len(norm["obs_mean"]) != len(norm["obs_var"]):
+            raise PolicyLoadError(
+                f"metadata malformed: {source}: obs_mean and obs_var differ in length"
+            )
+
+
+@dataclass
+class LoadedPolicy:
+    """A trained model with its metadata; ``predict`` maps one observation to one action."""
+
+    model: Any
+    metadata: dict
+    path: Path
+    _norm: dict | None = field(default=None, repr=False)
+
+    @property
+    def algo(self) -> str:
+        return str(self.metadata["algo"]).lower()
+
+    @property
+    def stage(self) -> int:
+        return int(self.metadata["stage"])
+
+    @property
+    def mode(self) -> str:
+        return str(self.metadata["mode"])
+
+    @property
+    def observation_spec(self) -> dict:
+        return dict(self.metadata["observation_spec"])
+
+    @property
+    def max_step_fs(self) -> float:
+        return float(self.metadata["max_step_fs"])
+
+    @property
+    def action_type(self) -> str:
+        return str(self.metadata["action_type"])
+
+    def normalize(self, obs) -> np.ndarray:
+        """The observation as the network saw it in training (saved statistics applied)."""
+        x = np.asarray(obs, dtype=np.float32)
+        if self._norm is None:
+            return x
+        mean, var = self._norm["mean"], self._norm["var"]
+        x = (x - mean) / np.sqrt(var + self._norm["epsilon"])
+        clip = self._norm["clip"]
+        return np.clip(x, -clip, clip).astype(np.float32)
+
+    def predict(self, obs) -> np.ndarray:
+        """Deterministic action in [-1, 1]^N for one observation (or a batch of them)."""
+        x = self.normalize(obs)
+        expected = tuple(self.model.observation_space.shape)
+        if x.shape != expected and x.shape[1:] != expected:
+            raise ValueError(
+                f"observation has shape {x.shape}, the model expects {expected} "
+                f"(stage {self.stage}, spec {self.observation_spec})"
+            )
+        action, _ = self.model.predict(x, deterministic=True)
+        return np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
+
+
+def load_policy(path: str | os.PathLike, device: str = "cpu") -> LoadedPolicy:
+    """Load ``DIR`` (or ``DIR/model.zip``) written by the training CLI.
+
+    Raises PolicyLoadError for a missing file or directory, a corrupt zip, missing or malformed
+    metadata and an unknown algorithm.
+    """
+    model_path, _ = resolve_paths(path)
+    metadata = read_metadata(path)
+    if not model_path.is_file():
+        raise PolicyLoadError(
+            f"model file missing: {model_path} not found (training may not have finished; "
+            "a checkpoint is in DIR/checkpoints/)"
+        )
+    if not zipfile.is_zipfile(model_path):
+        raise PolicyLoadError(f"corrupt model file: {model_path} is not a valid zip archive")
+    cls = algo_class(metadata["algo"])
+    try:
+        model = cls.load(str(model_path), device=device)
+    except Exception as exc:  # SB3 raises many kinds on a bad archive
+        raise PolicyLoadError(
+            f"corrupt model file: {model_path} could not be loaded as {metadata['algo']} "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
+    norm = None
+    if metadata.get("normalization"):
+        n = metadata["normalization"]
+        norm = {
+            "mean": np.asarray(n["obs_mean"], dtype=np.float64),
+            "var": np.asarray(n["obs_var"], dtype=np.float64),
+            "epsilon": float(n.get("epsilon", 1e-8)),
+            "clip": float(n.get("clip_obs", 10.0)),
+        }
+    shape = tuple(model.observation_space.shape)
+    if "observation_shape" in metadata and tuple(metadata["observation_shape"]) != shape:
+        raise PolicyLoadError(
+            f"metadata malformed: observation_shape {metadata['observation_shape']} does not "
+            f"match the model's {list(shape)}"
+        )
+    if norm is not None and norm["mean"].shape != shape:
+        raise PolicyLoadError(
+            f"metadata malformed: normalization statistics have shape {norm['mean'].shape}, "
+            f"the model's observations {shape}"
+        )
+    return LoadedPolicy(model=model, metadata=metadata, path=model_path.parent, _norm=norm)
+
+
+def check_stage(loaded: LoadedPolicy, sim_stage: int) -> None:
+    """Refuse a model trained for another number of stages than the simulator runs."""
+    if int(sim_stage) != loaded.stage:
+        raise PolicyLoadError(
+            f"model was trained for stage {loaded.stage} but the simulator runs stage "
+            f"{int(sim_stage)}"
+        )

@@ -1,0 +1,124 @@
+"""Environment factories for training and evaluation: in-process or through the ROS 2 bridge.
+
+Every environment is wrapped in SB3's ``Monitor`` with ``info_keywords=("power",)`` so that each
+finished episode reports its return, its length and its final P_N / P_max.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+BACKENDS = ("inprocess", "ros")
+EPISODE_STEPS = 200  # paper section 3.1
+
+
+def make_single_env(
+    backend: str,
+    stage: int,
+    mode: str,
+    split: str = "train",
+    namespace: str = "",
+    timeout_s: float = 5.0,
+    episode_steps: int = EPISODE_STEPS,
+    overrides: dict[str, Any] | None = None,
+):
+    """One gymnasium env (not wrapped)."""
+    overrides = dict(overrides or {})
+    if backend == "inprocess":
+        from ops_sim_ros import OpsEnv
+
+        return OpsEnv(
+            stage=stage, mode=mode, split=split, max_episode_steps=episode_steps, **overrides
+        )
+    if backend == "ros":
+        from .bridge_env import RosOpsEnv
+
+        return RosOpsEnv(
+            stage=stage,
+            mode=mode,
+            split=split,
+            namespace=namespace,
+            timeout_s=timeout_s,
+            max_episode_steps=episode_steps,
+            **overrides,
+        )
+    raise ValueError(f"backend must be one of {', '.join(BACKENDS)} (got {backend!r})")
+
+
+def _batched_vec_env(n_envs: int, stage: int, mode: str, split: str, episode_steps: int, seed):
+    """ops_sim_ros's batched SB3 VecEnv (one physics call for all envs), if it is available."""
+    try:
+        from ops_sim_ros import vec_env as ops_vec_env
+    except ImportError:
+        return None
+    factory = getattr(ops_vec_env, "make_sb3_vec_env", None) or getattr(
+        ops_vec_env, "OpsSb3VecEnv", None
+    )
+    if factory is None:
+        return None
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    venv = factory(
+        num_envs=n_envs, stage=stage, mode=mode, split=split, max_episode_steps=episode_steps,
+        seed=seed,
+    )
+    return VecMonitor(venv, info_keywords=("power",))
+
+
+def make_vec_env(
+    backend: str,
+    stage: int,
+    mode: str,
+    split: str = "train",
+    n_envs: int = 1,
+    seed: int | None = None,
+    namespaces: list[str] | None = None,
+    timeout_s: float = 5.0,
+    episode_steps: int = EPISODE_STEPS,
+    batched: bool = True,
+):
+    """An SB3 VecEnv of ``n_envs`` monitored envs.
+
+    In-process with ``n_envs > 1``: the batched vector env of ``ops_sim_ros.vec_env`` (falls back to
+    a DummyVecEnv of ``OpsEnv`` if it is missing). ROS backend: one bridge per namespace.
+    """
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    if n_envs < 1:
+        raise ValueError(f"n_envs must be >= 1 (got {n_envs})")
+    if backend == "ros":
+        namespaces = list(namespaces or [""])
+        if len(namespaces) == 1 and n_envs > 1:
+            raise ValueError(
+                f"--backend ros with --n-envs {n_envs} needs {n_envs} simulators: give one "
+                "--namespace per simulator (e.g. --namespace /rig1 --namespace /rig2)"
+            )
+        if n_envs not in (1, len(namespaces)):
+            raise ValueError(f"--n-envs {n_envs} but {len(namespaces)} namespaces were given")
+        fns = [
+            (lambda ns=ns: Monitor(make_single_env(
+                "ros", stage, mode, split, namespace=ns, timeout_s=timeout_s,
+                episode_steps=episode_steps), info_keywords=("power",)))
+            for ns in namespaces
+        ]
+        return DummyVecEnv(fns)
+    if backend != "inprocess":
+        raise ValueError(f"backend must be one of {', '.join(BACKENDS)} (got {backend!r})")
+    if n_envs > 1 and batched:
+        venv = _batched_vec_env(n_envs, stage, mode, split, episode_steps, seed)
+        if venv is not None:
+            return venv
+    fns = [
+        (lambda: Monitor(make_single_env("inprocess", stage, mode, split,
+                                         episode_steps=episode_steps), info_keywords=("power",)))
+        for _ in range(n_envs)
+    ]
+    return DummyVecEnv(fns)
+
+
+def final_powers(ep_info_buffer) -> np.ndarray:
+    """Final P_N / P_max of the episodes in an SB3 ep_info_buffer."""
+    return np.array([ep["power"] for ep in ep_info_buffer if "power" in ep], dtype=np.float64)

@@ -1,0 +1,103 @@
+"""Hyper-parameters: the paper's selected values (``hyperparams/<algo>.yaml``) and overrides.
+
+Pure: no rclpy, no torch at import. :func:`load` reads the defaults, :func:`apply_overrides`
+applies ``key=value`` strings (values parsed as YAML), :func:`sb3_kwargs` turns the flat dict
+into stable-baselines3 constructor arguments.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+ALGOS = ("ppo", "td3", "sac")
+#: Keys the CLI handles itself; everything else goes to the SB3 constructor.
+CLI_KEYS = (
+    "normalize_obs",
+    "checkpoint_freq",
+    "policy",
+    "net_arch",
+    "action_noise",
+    "action_noise_sigma",
+)
+
+
+def load(algo: str) -> dict[str, Any]:
+    """The default hyper-parameters of ``algo`` (a fresh dict)."""
+    if algo not in ALGOS:
+        raise ValueError(f"algo must be one of {', '.join(ALGOS)} (got {algo!r})")
+    path = HYPERPARAMS_DIR / f"{algo}.yaml"
+    data = yaml.safe_load(path.read_text())
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} must hold a mapping")
+    return data
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``"key=value"`` -> (key, YAML-parsed value)."""
+    if "=" not in text:
+        raise ValueError(f"hyper-parameter override {text!r} must look like key=value")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    if not key.isidentifier():
+        raise ValueError(f"hyper-parameter name {key!r} is not a valid name")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError as exc:
+        raise ValueError(f"cannot parse the value of {key}: {raw!r} ({exc})") from None
+    return key, value
+
+
+def apply_overrides(
+    params: dict[str, Any], overrides: list[str] | None, algo: str | None = None
+) -> dict[str, Any]:
+    """A copy of ``params`` with ``key=value`` overrides; unknown keys are checked against SB3."""
+    out = dict(params)
+    for text in overrides or []:
+        key, value = parse_override(text)
+        if key not in out and key not in CLI_KEYS and algo is not None:
+            allowed = _sb3_arguments(algo)
+            if allowed and key not in allowed:
+                raise ValueError(
+                    f"unknown hyper-parameter {key!r} for {algo}; known: "
+                    f"{', '.join(sorted(set(allowed) | set(CLI_KEYS)))}"
+                )
+        out[key] = value
+    return out
+
+
+def _sb3_arguments(algo: str) -> set[str]:
+    import inspect
+
+    from ops_controller_ros.policy_io import algo_class
+
+    sig = inspect.signature(algo_class(algo).__init__)
+    return {n for n in sig.parameters if n not in ("self", "env", "policy")}
+
+
+def sb3_kwargs(algo: str, params: dict[str, Any], action_dim: int) -> dict[str, Any]:
+    """Constructor arguments for the SB3 class of ``algo`` (policy included)."""
+    kwargs = {k: v for k, v in params.items() if k not in CLI_KEYS}
+    kwargs["policy"] = params.get("policy", "MlpPolicy")
+    net_arch = params.get("net_arch")
+    if net_arch is not None:
+        policy_kwargs = dict(kwargs.get("policy_kwargs") or {})
+        policy_kwargs["net_arch"] = list(net_arch)
+        kwargs["policy_kwargs"] = policy_kwargs
+    noise = params.get("action_noise")
+    if noise:
+        import numpy as np
+        from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+        sigma = float(params.get("action_noise_sigma", 0.1)) * np.ones(action_dim)
+        mean = np.zeros(action_dim)
+        if noise == "normal":
+            kwargs["action_noise"] = NormalActionNoise(mean, sigma)
+        elif noise in ("ornstein-uhlenbeck", "ou"):
+            kwargs["action_noise"] = OrnsteinUhlenbeckActionNoise(mean, sigma)
+        else:
+            raise ValueError(f"action_noise must be normal or ornstein-uhlenbeck (got {noise!r})")
+    return kwargs
