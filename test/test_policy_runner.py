@@ -1,0 +1,113 @@
+"""The learned-policy runner against a real simulator process, with a model really trained by
+stable-baselines3 through the training command line."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+from ros_testing import assert_no_traceback, ros2_command
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
+
+
+@pytest.fixture(scope="module")
+def trained_model(tmp_path_factory):
+    """A small PPO model for stage 2, easy mode: a thousand real training steps (it need not be
+    good, only real: the runner's job is to load it and close the loop with it)."""
+    out = tmp_path_factory.mktemp("model") / "ppo_n2"
+    cmd = [
+        *ros2_command(),
+        "run",
+        "ops_gym_bridge",
+        "train",
+        "--algo",
+        "ppo",
+        "--stage",
+        "2",
+        "--mode",
+        "easy",
+        "--timesteps",
+        "1024",
+        "--seed",
+        "3",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--hyperparams",
+        "n_steps=256",
+        "batch_size=64",
+        "n_epochs=2",
+    ]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=200)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert (out / "model.zip").is_file() and (out / "metadata.json").is_file()
+    return out
+
+
+def policy(procs, model, name="policy"):
+    return procs.ros2(
+        "run", "ops_controller_ros", "policy", "--ros-args", "-p", f"model:={model}", name=name
+    )
+
+
+def test_policy_runner_closes_the_loop(procs, observer, trained_model):
+    procs.ros2(
+        "run",
+        "ops_sim_ros",
+        "sim",
+        "--ros-args",
+        "-p",
+        "stage:=2",
+        "-p",
+        "mode:=easy",
+        "-p",
+        "seed:=11",
+        "-p",
+        "rate_hz:=100.0",
+        name="sim",
+    )
+    runner = policy(procs, trained_model)
+    runner.wait_for("loaded PPO model for stage 2")
+    runner.wait_for("running the policy", timeout=30)
+    runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
+    # The runner moves the set-points: commands arrive and the sim applies them.
+    first = observer.last("delays")
+    observer.wait_until(
+        lambda: (
+            observer.last("delays") is not None
+            and not np.allclose(observer.last("delays"), first or [0, 0])
+        ),
+        timeout=20,
+        what="set-points moved by the policy",
+    )
+    assert_no_traceback(runner.output)
+
+
+def test_model_for_another_stage_is_refused(procs, trained_model):
+    procs.ros2("run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=3", name="sim")
+    runner = policy(procs, trained_model)
+    assert runner.wait_exit(60) == 1
+    assert "model was trained for stage 2 but the simulator runs stage 3" in runner.output
+    assert_no_traceback(runner.output)
+
+
+@pytest.mark.parametrize("problem", ["missing", "corrupt", "no_param"])
+def test_missing_or_corrupt_model_is_a_clear_error(procs, tmp_path, trained_model, problem):
+    if problem == "missing":
+        runner = policy(procs, tmp_path / "nowhere")
+        expect = "not found"
+    elif problem == "corrupt":
+        bad = tmp_path / "bad"
+        bad.mkdir()
+        (bad / "model.zip").write_bytes(b"not a zip at all")
+        (bad / "metadata.json").write_text((trained_model / "metadata.json").read_text())
+        runner = policy(procs, bad)
+        expect = "corrupt model file"
+    else:
+        runner = procs.ros2("run", "ops_controller_ros", "policy", name="policy")
+        expect = "model must be the path of a trained model"
+    assert runner.wait_exit(60) == 2
+    assert expect in runner.output, runner.output
+    assert_no_traceback(runner.output)
