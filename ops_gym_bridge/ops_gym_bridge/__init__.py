@@ -1,1 +1,22 @@
-"""Gymnasium environment over the OPS simulator topics; train, evaluate, benchmark CLIs."""
+"""Gymnasium environment over the simulator's ROS 2 topics; train, evaluate and benchmark CLIs.
+
+Importing this package registers the Gymnasium id ``ops_gym_bridge/RosPulseStacking-v0``
+(:class:`ops_gym_bridge.bridge_env.RosOpsEnv`; rclpy is imported only when one is created).
+"""
+
+ENV_ID = "ops_gym_bridge/RosPulseStacking-v0"
+
+
+def _register() -> None:
+    from gymnasium.envs.registration import register, registry
+
+    if ENV_ID not in registry:
+        # A real simulator's noise cannot be replayed from the bridge's seed: nondeterministic.
+        register(
+            id=ENV_ID, entry_point="ops_gym_bridge.bridge_env:RosOpsEnv", nondeterministic=True
+        )
+
+
+_register()
+
+__all__ = ["ENV_ID"]

@@ -61,7 +61,11 @@ def _batched_vec_env(n_envs: int, stage: int, mode: str, split: str, episode_ste
     from stable_baselines3.common.vec_env import VecMonitor
 
     venv = factory(
-        num_envs=n_envs, stage=stage, mode=mode, split=split, max_episode_steps=episode_steps,
+        num_envs=n_envs,
+        stage=stage,
+        mode=mode,
+        split=split,
+        max_episode_steps=episode_steps,
         seed=seed,
     )
     return VecMonitor(venv, info_keywords=("power",))
@@ -99,9 +103,20 @@ def make_vec_env(
         if n_envs not in (1, len(namespaces)):
             raise ValueError(f"--n-envs {n_envs} but {len(namespaces)} namespaces were given")
         fns = [
-            (lambda ns=ns: Monitor(make_single_env(
-                "ros", stage, mode, split, namespace=ns, timeout_s=timeout_s,
-                episode_steps=episode_steps), info_keywords=("power",)))
+            (
+                lambda ns=ns: Monitor(
+                    make_single_env(
+                        "ros",
+                        stage,
+                        mode,
+                        split,
+                        namespace=ns,
+                        timeout_s=timeout_s,
+                        episode_steps=episode_steps,
+                    ),
+                    info_keywords=("power",),
+                )
+            )
             for ns in namespaces
         ]
         return DummyVecEnv(fns)
@@ -112,8 +127,12 @@ def make_vec_env(
         if venv is not None:
             return venv
     fns = [
-        (lambda: Monitor(make_single_env("inprocess", stage, mode, split,
-                                         episode_steps=episode_steps), info_keywords=("power",)))
+        (
+            lambda: Monitor(
+                make_single_env("inprocess", stage, mode, split, episode_steps=episode_steps),
+                info_keywords=("power",),
+            )
+        )
         for _ in range(n_envs)
     ]
     return DummyVecEnv(fns)

@@ -19,11 +19,11 @@ Ctrl-C (or SIGTERM) stops training, saves a usable model and metadata, and exits
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as _dt
 import signal
 import sys
 import time
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -60,26 +60,61 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--algo", choices=hp.ALGOS, default="sac", help="RL algorithm")
     p.add_argument("--stage", type=int, default=5, help="number of stacking stages N")
     p.add_argument("--mode", choices=MODES, default="medium", help="difficulty mode")
-    p.add_argument("--split", choices=("train", "test"), default="train",
-                   help="noise variant to train on (the paper trains on 'train')")
-    p.add_argument("--timesteps", type=int, default=100_000,
-                   help="environment steps to train (with --resume: additional steps)")
+    p.add_argument(
+        "--split",
+        choices=("train", "test"),
+        default="train",
+        help="noise variant to train on (the paper trains on 'train')",
+    )
+    p.add_argument(
+        "--timesteps",
+        type=int,
+        default=100_000,
+        help="environment steps to train (with --resume: additional steps)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed")
-    p.add_argument("--backend", choices=BACKENDS, default="inprocess",
-                   help="inprocess: simulate in this process; ros: through running simulators")
+    p.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="inprocess",
+        help="inprocess: simulate in this process; ros: through running simulators",
+    )
     p.add_argument("--n-envs", type=int, default=1, help="parallel environments")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--hyperparams", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
-                   help="override defaults from hyperparams/<algo>.yaml (YAML values)")
-    p.add_argument("--resume", action="store_true",
-                   help="continue training the model in --out (step count continues)")
+    p.add_argument(
+        "--hyperparams",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override defaults from hyperparams/<algo>.yaml (YAML values)",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue training the model in --out (step count continues)",
+    )
     p.add_argument("--episode-steps", type=int, default=EPISODE_STEPS, help="steps per episode")
-    p.add_argument("--namespace", action="append", default=None,
-                   help="(ros) namespace of a simulator; repeat for several (one per env)")
-    p.add_argument("--ros-timeout", type=float, default=5.0,
-                   help="(ros) seconds to wait for the simulator before failing")
+    p.add_argument(
+        "--namespace",
+        action="append",
+        default=None,
+        help="(ros) namespace of a simulator; repeat for several (one per env)",
+    )
+    p.add_argument(
+        "--ros-timeout",
+        type=float,
+        default=5.0,
+        help="(ros) seconds to wait for the simulator before failing",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--device", default="cpu", help="torch device")
+    p.add_argument(
+        "--torch-threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (small networks train fastest on 1; 0: torch default)",
+    )
     return p
 
 
@@ -102,9 +137,16 @@ class ProgressCallback:
                 from tqdm import tqdm
 
                 start = self.model.num_timesteps
-                self.bar = tqdm(total=self.total, initial=start, unit="step", dynamic_ncols=True,
-                                disable=not self.enabled, smoothing=0.05, file=sys.stderr,
-                                mininterval=0.5)
+                self.bar = tqdm(
+                    total=self.total,
+                    initial=start,
+                    unit="step",
+                    dynamic_ncols=True,
+                    disable=not self.enabled,
+                    smoothing=0.05,
+                    file=sys.stderr,
+                    mininterval=0.5,
+                )
                 self._seen = start
 
             def _on_step(self) -> bool:
@@ -163,21 +205,33 @@ def _normalization_stats(venv) -> dict | None:
     }
 
 
-def build_metadata(args, params: dict, model, venv, argv: list[str], wall_s: float,
-                   interrupted: bool, previous: dict | None) -> dict[str, Any]:
+def build_metadata(
+    args,
+    params: dict,
+    model,
+    venv,
+    argv: list[str],
+    wall_s: float,
+    interrupted: bool,
+    previous: dict | None,
+) -> dict[str, Any]:
     from ops_controller_ros.policy_io import library_versions
+
     from ops_sim_ros import OpsEnv
 
-    ref = OpsEnv(stage=args.stage, mode=args.mode, split=args.split,
-                 max_episode_steps=args.episode_steps)
+    ref = OpsEnv(
+        stage=args.stage, mode=args.mode, split=args.split, max_episode_steps=args.episode_steps
+    )
     history = list((previous or {}).get("history", []))
-    history.append({
-        "command_line": argv,
-        "timesteps": int(model.num_timesteps),
-        "wall_s": round(wall_s, 2),
-        "interrupted": interrupted,
-        "finished": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-    })
+    history.append(
+        {
+            "command_line": argv,
+            "timesteps": int(model.num_timesteps),
+            "wall_s": round(wall_s, 2),
+            "interrupted": interrupted,
+            "finished": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        }
+    )
     powers = final_powers(model.ep_info_buffer or [])
     return {
         "algo": args.algo,
@@ -217,8 +271,9 @@ def _save(out: Path, args, params, model, venv, argv, wall_s, interrupted, previ
 
     if isinstance(venv, VecNormalize):
         venv.save(str(out / "vecnormalize.pkl"))
-    save_metadata(out, build_metadata(args, params, model, venv, argv, wall_s, interrupted,
-                                      previous))
+    save_metadata(
+        out, build_metadata(args, params, model, venv, argv, wall_s, interrupted, previous)
+    )
 
 
 def _fail(message: str, code: int = 2) -> int:
@@ -245,16 +300,20 @@ def run(argv: list[str] | None = None) -> int:
         for key in ("algo", "stage", "mode", "split", "episode_steps"):
             flag = "--" + key.replace("_", "-")
             if flag in given and getattr(args, key) != previous.get(key, getattr(args, key)):
-                return _fail(f"--resume: {flag} {getattr(args, key)} differs from the model's "
-                             f"{previous[key]} in {out}")
+                return _fail(
+                    f"--resume: {flag} {getattr(args, key)} differs from the model's "
+                    f"{previous[key]} in {out}"
+                )
             if key in previous:
                 setattr(args, key, previous[key])
-        params = hp.apply_overrides(previous.get("hyperparams") or hp.load(args.algo),
-                                    args.hyperparams, args.algo)
+        params = hp.apply_overrides(
+            previous.get("hyperparams") or hp.load(args.algo), args.hyperparams, args.algo
+        )
     else:
         if (out / "model.zip").exists():
-            return _fail(f"{out} already holds a model; use --resume to continue it or choose "
-                         "another --out")
+            return _fail(
+                f"{out} already holds a model; use --resume to continue it or choose another --out"
+            )
         try:
             params = hp.apply_overrides(hp.load(args.algo), args.hyperparams, args.algo)
         except ValueError as exc:
@@ -262,14 +321,23 @@ def run(argv: list[str] | None = None) -> int:
     if args.timesteps < 0:
         return _fail("--timesteps must be >= 0")
 
+    import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecNormalize
 
     try:
-        venv = make_vec_env(args.backend, args.stage, args.mode, args.split, n_envs=args.n_envs,
-                            seed=args.seed, namespaces=args.namespace,
-                            timeout_s=args.ros_timeout, episode_steps=args.episode_steps)
+        venv = make_vec_env(
+            args.backend,
+            args.stage,
+            args.mode,
+            args.split,
+            n_envs=args.n_envs,
+            seed=args.seed,
+            namespaces=args.namespace,
+            timeout_s=args.ros_timeout,
+            episode_steps=args.episode_steps,
+        )
     except ValueError as exc:
         return _fail(str(exc))
     normalize = bool(params.get("normalize_obs", False))
@@ -281,6 +349,8 @@ def run(argv: list[str] | None = None) -> int:
         else:
             venv = VecNormalize(venv, norm_obs=True, norm_reward=False, clip_obs=10.0)
 
+    if args.torch_threads > 0:
+        torch.set_num_threads(args.torch_threads)
     out.mkdir(parents=True, exist_ok=True)
     cls = algo_class(args.algo)
     if args.resume:
@@ -294,8 +364,10 @@ def run(argv: list[str] | None = None) -> int:
         rb = out / "replay_buffer.pkl"
         if hasattr(model, "replay_buffer") and rb.exists():
             model.load_replay_buffer(str(rb))
-        print(f"[train] resuming {args.algo} from {source.name} at step {model.num_timesteps}",
-              flush=True)
+        print(
+            f"[train] resuming {args.algo} from {source.name} at step {model.num_timesteps}",
+            flush=True,
+        )
     else:
         action_dim = int(np.prod(venv.action_space.shape))
         try:
@@ -310,11 +382,17 @@ def run(argv: list[str] | None = None) -> int:
     total = start_steps + args.timesteps
     ckpt_every = max(int(params.get("checkpoint_freq", 10000)) // max(args.n_envs, 1), 1)
     (out / "checkpoints").mkdir(exist_ok=True)
-    callbacks = CallbackList([
-        ProgressCallback(total, enabled=not args.no_progress),
-        CheckpointCallback(ckpt_every, str(out / "checkpoints"), name_prefix="model",
-                           save_vecnormalize=normalize),
-    ])
+    callbacks = CallbackList(
+        [
+            ProgressCallback(total, enabled=not args.no_progress),
+            CheckpointCallback(
+                ckpt_every,
+                str(out / "checkpoints"),
+                name_prefix="model",
+                save_vecnormalize=normalize,
+            ),
+        ]
+    )
     # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
     ckpt_meta = build_metadata(args, params, model, venv, command_line, 0.0, False, previous)
     from ops_controller_ros.policy_io import save_metadata
@@ -324,13 +402,20 @@ def run(argv: list[str] | None = None) -> int:
     previous_handler = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
     interrupted = False
     t0 = time.monotonic()
-    print(f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
-          f"backend={args.backend} n_envs={args.n_envs} steps {start_steps} -> {total}, "
-          f"out={out}", flush=True)
+    print(
+        f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
+        f"backend={args.backend} n_envs={args.n_envs} steps {start_steps} -> {total}, "
+        f"out={out}",
+        flush=True,
+    )
     error: BaseException | None = None
     try:
-        model.learn(total_timesteps=args.timesteps, callback=callbacks,
-                    reset_num_timesteps=not args.resume, log_interval=1)
+        model.learn(
+            total_timesteps=args.timesteps,
+            callback=callbacks,
+            reset_num_timesteps=not args.resume,
+            log_interval=1,
+        )
     except KeyboardInterrupt:
         interrupted = True
     except Exception as exc:  # e.g. the simulator died: keep what was learned, then report
@@ -344,29 +429,42 @@ def run(argv: list[str] | None = None) -> int:
             bar.close()
     wall = time.monotonic() - t0
     try:
-        _save(out, args, params, model, venv, command_line, wall, interrupted or error is not None,
-              previous)
+        _save(
+            out,
+            args,
+            params,
+            model,
+            venv,
+            command_line,
+            wall,
+            interrupted or error is not None,
+            previous,
+        )
     finally:
-        try:
+        with contextlib.suppress(Exception):  # closing must not hide the result
             venv.close()
-        except Exception:  # closing must not hide the result
-            pass
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, previous_handler)
     powers = final_powers(model.ep_info_buffer or [])
-    summary = (f"{model.num_timesteps} steps ({model.num_timesteps - start_steps} new) in "
-               f"{wall:.1f} s")
+    summary = (
+        f"{model.num_timesteps} steps ({model.num_timesteps - start_steps} new) in {wall:.1f} s"
+    )
     if powers.size:
-        summary += (f"; last {powers.size} episodes: return "
-                    f"{np.mean([ep['r'] for ep in model.ep_info_buffer]):.2f}, final P_N/P_max "
-                    f"{powers.mean():.3f}")
+        summary += (
+            f"; last {powers.size} episodes: return "
+            f"{np.mean([ep['r'] for ep in model.ep_info_buffer]):.2f}, final P_N/P_max "
+            f"{powers.mean():.3f}"
+        )
     if error is not None:
         print(f"[train] error after {summary}: {type(error).__name__}: {error}", file=sys.stderr)
         print(f"[train] model so far saved to {out / 'model.zip'}", file=sys.stderr, flush=True)
         return 1
     if interrupted:
-        print(f"\n[train] interrupted after {summary}; model saved to {out / 'model.zip'} "
-              "(continue with --resume)", flush=True)
+        print(
+            f"\n[train] interrupted after {summary}; model saved to {out / 'model.zip'} "
+            "(continue with --resume)",
+            flush=True,
+        )
         return EXIT_INTERRUPTED
     print(f"[train] done: {summary}; model saved to {out / 'model.zip'}", flush=True)
     return 0

@@ -1,0 +1,206 @@
+"""The Gymnasium bridge against real simulator processes over DDS (lockstep mode)."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from conftest import start_sim
+from ops_gym_bridge.bridge_env import (
+    LockstepError,
+    RosOpsEnv,
+    SimulatorTimeoutError,
+    StageMismatchError,
+)
+
+from ops_gym_bridge import ENV_ID
+from ops_sim_ros import OpsEnv
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
+
+
+@pytest.fixture(scope="module")
+def sim3(module_procs):
+    """A stage-3, easy, lockstep simulator shared by the module (namespace /bridge)."""
+    return start_sim(module_procs, stage=3, mode="easy", namespace="/bridge", name="sim3")
+
+
+@pytest.fixture
+def bridge(sim3):
+    env = RosOpsEnv(stage=3, mode="easy", namespace="/bridge", timeout_s=10.0)
+    yield env
+    env.close()
+
+
+def test_spaces_equal_the_inprocess_env(bridge):
+    ref = OpsEnv(stage=3, mode="easy")
+    assert bridge.observation_space == ref.observation_space
+    assert bridge.action_space == ref.action_space
+    assert bridge.obs_spec == ref.obs_spec
+    assert bridge.max_step_fs == pytest.approx(ref.config.max_step_fs)
+
+
+def test_gymnasium_env_checker_passes(sim3):
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(ENV_ID, stage=3, mode="easy", namespace="/bridge", timeout_s=10.0)
+    try:
+        assert env.spec.nondeterministic  # a real rig: the same seed cannot replay its noise
+        check_env(env.unwrapped, skip_render_check=True)
+    finally:
+        env.close()
+
+
+def test_each_step_returns_its_own_commands_observation(bridge):
+    obs, info = bridge.reset()
+    period = bridge.obs_spec.optical_period_fs
+    n = bridge.obs_spec.num_slots
+    setpoints = info["setpoints_fs"]
+    np.testing.assert_allclose(obs[n + 1 :], setpoints / period, rtol=1e-5, atol=1e-6)
+    rng = np.random.default_rng(0)
+    for k in range(60):
+        # Distinct actions every step (signs and sizes vary), so a stale answer cannot match.
+        action = rng.uniform(-1.0, 1.0, size=3).astype(np.float32)
+        action[k % 3] = 1.0 if k % 2 else -1.0
+        expected = (setpoints + action * bridge.max_step_fs).astype(np.float32)
+        obs, reward, terminated, truncated, info = bridge.step(action)
+        # The simulator echoes the set-points it applied: they are this step's command.
+        np.testing.assert_allclose(info["setpoints_fs"], expected, atol=1e-4)
+        np.testing.assert_allclose(obs[n + 1 :], expected / period, rtol=1e-4, atol=1e-5)
+        assert obs[n] == pytest.approx(info["power"], abs=1e-6)
+        assert reward == pytest.approx(-((1.0 - info["power"]) ** 2), abs=1e-5)
+        assert not terminated and not truncated
+        setpoints = info["setpoints_fs"]
+
+
+def test_absolute_setpoints_and_episode_truncation(sim3):
+    env = RosOpsEnv(stage=3, mode="easy", namespace="/bridge", timeout_s=10.0, max_episode_steps=5)
+    try:
+        env.reset()
+        for target in ([0.0, 0.0, 0.0], [0.5, -0.25, 0.125], [0.0, 0.0, 0.0]):
+            _, info = env.set_setpoints(target)
+            np.testing.assert_allclose(info["setpoints_fs"], target, atol=1e-6)
+        powers = []
+        env.reset()
+        for k in range(5):
+            _, _, _, truncated, info = env.step(np.zeros(3))
+            powers.append(info["power"])
+            assert truncated == (k == 4)
+        assert all(0.0 <= p <= 1.0 for p in powers)
+    finally:
+        env.close()
+
+
+def test_stage_mismatch_is_a_clear_error(sim3):
+    env = RosOpsEnv(stage=2, mode="easy", namespace="/bridge", timeout_s=10.0)
+    try:
+        with pytest.raises(
+            StageMismatchError, match=r"simulator runs stage 3 .* asked for stage 2"
+        ):
+            env.reset()
+    finally:
+        env.close()
+
+
+def test_no_simulator_times_out_quickly():
+    env = RosOpsEnv(stage=3, mode="easy", namespace="/nobody_here", timeout_s=0.5)
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(SimulatorTimeoutError, match="no simulator answered on /nobody_here"):
+            env.reset()
+        assert time.monotonic() - t0 < 3.0
+    finally:
+        env.close()
+
+
+def test_close_leaves_no_node_or_thread(sim3):
+    import rclpy
+
+    before = {t.ident for t in threading.enumerate()}
+    env = RosOpsEnv(
+        stage=3, mode="easy", namespace="/bridge", timeout_s=10.0, node_name="bridge_under_test"
+    )
+    env.reset()
+    env.step(np.zeros(3))
+    context = env._context
+    env.close()
+    env.close()  # idempotent
+    after = {t.ident for t in threading.enumerate()}
+    assert after <= before, [t.name for t in threading.enumerate() if t.ident not in before]
+    assert not context.ok()
+    with pytest.raises(Exception, match="closed"):
+        env.step(np.zeros(3))
+    # The node is gone from the ROS graph as seen from another participant.
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("graph_probe", context=ctx)
+    try:
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            names = [n for n, _ in node.get_node_names_and_namespaces()]
+            if "ops_sim" in names:  # discovery done
+                break
+            time.sleep(0.05)
+        assert "ops_sim" in names
+        assert "bridge_under_test" not in names
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_killed_simulator_makes_step_raise_within_timeout(procs):
+    sim = start_sim(procs, stage=3, mode="easy", namespace="/doomed", name="doomed")
+    env = RosOpsEnv(stage=3, mode="easy", namespace="/doomed", timeout_s=1.5)
+    try:
+        env.reset()
+        for _ in range(5):
+            env.step(np.full(3, 0.5))
+        sim.signal(signal.SIGKILL)
+        sim.popen.wait(10)
+        t0 = time.monotonic()
+        with pytest.raises(
+            SimulatorTimeoutError, match=r"no answer from the simulator within 1\.5 s"
+        ):
+            env.step(np.full(3, 0.5))
+        assert time.monotonic() - t0 < 3.0
+        with pytest.raises(SimulatorTimeoutError):
+            env.reset()
+    finally:
+        env.close()
+
+
+def test_parallel_bridges_are_isolated_by_namespace(procs):
+    start_sim(procs, stage=2, mode="easy", namespace="/rig1", name="rig1")
+    start_sim(procs, stage=4, mode="easy", namespace="/rig2", name="rig2")
+    a = RosOpsEnv(stage=2, mode="easy", namespace="/rig1", timeout_s=10.0)
+    b = RosOpsEnv(stage=4, mode="easy", namespace="/rig2", timeout_s=10.0)
+    try:
+        oa, _ = a.reset()
+        ob, _ = b.reset()
+        assert oa.shape == a.observation_space.shape and ob.shape == b.observation_space.shape
+        sa, sb = a._setpoints.copy(), b._setpoints.copy()
+        for k in range(1, 21):  # interleaved steps, each answered by its own rig
+            _, _, _, _, ia = a.step(np.full(2, 1.0))
+            _, _, _, _, ib = b.step(np.full(4, -1.0))
+            np.testing.assert_allclose(ia["setpoints_fs"], sa + k * a.max_step_fs, atol=1e-4)
+            np.testing.assert_allclose(ib["setpoints_fs"], sb - k * b.max_step_fs, atol=1e-4)
+    finally:
+        a.close()
+        b.close()
+
+
+def test_free_running_simulator_is_refused(procs):
+    sim = start_sim(procs, stage=3, mode="easy", namespace="/free", lockstep=False, name="free")
+    env = RosOpsEnv(stage=3, mode="easy", namespace="/free", timeout_s=5.0)
+    try:
+        with pytest.raises((LockstepError, SimulatorTimeoutError), match="lockstep"):
+            env.reset()
+            for _ in range(50):
+                env.step(np.zeros(3))
+    finally:
+        env.close()
+        sim.stop()

@@ -1,0 +1,259 @@
+"""train / evaluate command lines with real stable-baselines3 training, in-process backend."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import shutil
+import signal
+import subprocess
+
+import numpy as np
+import pytest
+from conftest import executable
+from ops_controller_ros.policy_io import PolicyLoadError, check_stage, load_policy, read_metadata
+
+from ops_sim_ros import OpsEnv
+
+pytestmark = pytest.mark.timeout(180)
+
+# Small network and early learning so that a few thousand steps take seconds on 2 cores.
+FAST = ["learning_starts=200", "net_arch=[64,64]", "batch_size=64", "checkpoint_freq=500"]
+
+
+def run(exe: str, *args, timeout=150) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [*executable("ops_gym_bridge", exe), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train") / "sac_n3"
+    done = run(
+        "train",
+        "--algo",
+        "sac",
+        "--stage",
+        3,
+        "--mode",
+        "easy",
+        "--timesteps",
+        1500,
+        "--seed",
+        5,
+        "--out",
+        out,
+        "--no-progress",
+        "--hyperparams",
+        *FAST,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "Traceback" not in done.stderr
+    assert "[train] done: 1500 steps" in done.stdout
+    return out
+
+
+def test_output_directory_and_metadata(trained):
+    assert (trained / "model.zip").is_file()
+    assert (trained / "replay_buffer.pkl").is_file()
+    assert (trained / "logs" / "progress.csv").is_file()
+    assert list((trained / "logs").glob("events.out.tfevents.*"))
+    ckpts = sorted((trained / "checkpoints").glob("model_*_steps.zip"))
+    assert [c.name for c in ckpts] == [
+        "model_1000_steps.zip",
+        "model_1500_steps.zip",
+        "model_500_steps.zip",
+    ]
+    meta = read_metadata(trained)
+    env = OpsEnv(stage=3, mode="easy")
+    assert meta["algo"] == "sac" and meta["stage"] == 3 and meta["mode"] == "easy"
+    assert meta["split"] == "train" and meta["action_type"] == "increment"
+    assert meta["timesteps"] == 1500 and meta["seed"] == 5 and meta["backend"] == "inprocess"
+    assert meta["max_step_fs"] == pytest.approx(env.config.max_step_fs)
+    assert meta["observation_spec"] == env.obs_spec.to_dict()
+    assert meta["config"] == env.config.to_dict()
+    assert meta["normalization"] is None
+    assert meta["hyperparams"]["learning_starts"] == 200
+    assert meta["hyperparams"]["net_arch"] == [64, 64]
+    assert meta["hyperparams"]["gamma"] == 0.98  # the paper's value, not overridden
+    assert meta["command_line"][:4] == ["ros2", "run", "ops_gym_bridge", "train"]
+    assert "--timesteps" in meta["command_line"]
+    assert set(meta["versions"]) >= {"python", "numpy", "torch", "stable_baselines3", "gymnasium"}
+    # The checkpoints load with the same reader.
+    assert load_policy(trained / "checkpoints" / "model_500_steps.zip").stage == 3
+
+
+def test_model_loads_and_runs_and_stage_is_checked(trained):
+    loaded = load_policy(trained)
+    assert loaded.model.num_timesteps == 1500
+    env = OpsEnv(stage=3, mode="easy")
+    obs, _ = env.reset(seed=0)
+    for _ in range(20):
+        action = loaded.predict(obs)
+        assert action.shape == (3,) and np.all(np.abs(action) <= 1)
+        obs, *_ = env.step(action)
+    check_stage(loaded, 3)
+    with pytest.raises(
+        PolicyLoadError, match="model was trained for stage 3 but the simulator runs stage 5"
+    ):
+        check_stage(loaded, 5)
+
+
+def test_evaluate_writes_json_csv_png(trained, tmp_path):
+    out = tmp_path / "eval"
+    done = run("evaluate", trained, "--seeds", 0, 1, "--episodes", 3, "--steps", 40, "--out", out)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert re.search(r"train\s+0\.\d{4} ± 0\.\d{4}", done.stdout), done.stdout
+    res = json.loads((out / "evaluation.json").read_text())
+    assert res["controller"] == "sac" and res["stage"] == 3 and res["mode"] == "easy"
+    for split in ("train", "test"):
+        s = res["splits"][split]
+        assert len(s["curve_mean"]) == 41 and len(s["final_power_per_seed"]) == 2
+        assert 0.0 <= s["final_power_mean"] <= 1.0
+        assert s["final_power_mean"] == pytest.approx(s["curve_mean"][-1])
+        assert s["final_power_std"] == pytest.approx(np.std(s["final_power_per_seed"]))
+    rows = list(csv.DictReader((out / "curve.csv").read_text().splitlines()))
+    assert len(rows) == 2 * 41 and rows[0]["step"] == "0"
+    assert (out / "curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_evaluate_transfer_to_another_mode_and_refused_stage(trained, tmp_path):
+    done = run(
+        "evaluate",
+        trained,
+        "--mode",
+        "hard",
+        "--splits",
+        "test",
+        "--seeds",
+        0,
+        "--episodes",
+        2,
+        "--steps",
+        20,
+        "--out",
+        tmp_path / "hard",
+        "--no-plot",
+    )
+    assert done.returncode == 0, done.stderr
+    res = json.loads((tmp_path / "hard" / "evaluation.json").read_text())
+    assert res["mode"] == "hard" and res["trained_mode"] == "easy"
+    assert list(res["splits"]) == ["test"]
+    done = run("evaluate", trained, "--stage", 4, "--out", tmp_path / "s4")
+    assert done.returncode == 2
+    assert "cannot evaluate a stage-3 model on stage 4" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_evaluate_spgd_baseline(tmp_path):
+    done = run(
+        "evaluate",
+        "--spgd",
+        "--stage",
+        2,
+        "--mode",
+        "medium",
+        "--seeds",
+        0,
+        1,
+        "--episodes",
+        2,
+        "--out",
+        tmp_path / "spgd",
+        "--no-plot",
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    res = json.loads((tmp_path / "spgd" / "evaluation.json").read_text())
+    assert res["controller"] == "spgd"
+    s = res["splits"]["train"]
+    assert s["final_power_mean"] > s["initial_power_mean"]  # SPGD climbs
+
+
+def test_resume_continues_the_step_count(trained, tmp_path):
+    out = tmp_path / "resumed"
+    shutil.copytree(trained, out)
+    done = run("train", "--resume", "--out", out, "--timesteps", 400, "--no-progress")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "resuming sac from model.zip at step 1500" in done.stdout
+    assert "[train] done: 1900 steps (400 new)" in done.stdout
+    meta = read_metadata(out)
+    assert meta["timesteps"] == 1900 and len(meta["history"]) == 2
+    assert meta["stage"] == 3 and meta["hyperparams"]["net_arch"] == [64, 64]
+    assert load_policy(out).model.num_timesteps == 1900
+    steps = [
+        int(float(r["time/total_timesteps"]))
+        for r in csv.DictReader((out / "logs" / "progress.csv").read_text().splitlines())
+        if r.get("time/total_timesteps")
+    ]
+    assert steps[-1] == 1900 and steps == sorted(steps)
+    # A resume cannot change what the model is.
+    done = run("train", "--resume", "--out", out, "--stage", 5, "--timesteps", 10)
+    assert done.returncode == 2 and "--stage 5 differs from the model's 3" in done.stderr
+
+
+def test_refuses_to_overwrite_and_bad_hyperparameters(trained, tmp_path):
+    done = run("train", "--out", trained, "--timesteps", 10)
+    assert done.returncode == 2 and "already holds a model" in done.stderr
+    done = run("train", "--out", tmp_path / "x", "--hyperparams", "no_such_knob=3")
+    assert done.returncode == 2 and "unknown hyper-parameter 'no_such_knob'" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_ctrl_c_saves_a_loadable_model(procs, tmp_path):
+    out = tmp_path / "interrupted"
+    proc = procs.start(
+        [
+            *executable("ops_gym_bridge", "train"),
+            "--algo",
+            "td3",
+            "--stage",
+            "2",
+            "--mode",
+            "easy",
+            "--timesteps",
+            "100000",
+            "--out",
+            str(out),
+            "--hyperparams",
+            "learning_starts=200",
+            "train_freq=10",
+            "gradient_steps=10",
+            "net_arch=[32,32]",
+        ],
+        name="train",
+    )
+    proc.wait_for(r"\[train\] training started", timeout=60)
+    # Wait until the progress bar shows learning under way (past learning_starts).
+    proc.wait_for(r"\b([3-9]\d\d|\d{4,})/100000\b", timeout=90)
+    proc.signal(signal.SIGINT)
+    assert proc.wait_exit(60) == 130
+    text = proc.output
+    assert "Traceback" not in text, text
+    assert re.search(r"\[train\] interrupted after \d+ steps", text), text
+    meta = read_metadata(out)
+    assert meta["interrupted"] is True and 300 <= meta["timesteps"] < 100000
+    loaded = load_policy(out)
+    assert loaded.model.num_timesteps == meta["timesteps"]
+    obs, _ = OpsEnv(stage=2, mode="easy").reset(seed=0)
+    assert loaded.predict(obs).shape == (2,)
+
+
+def test_inprocess_n_envs_uses_the_batched_vector_env():
+    from ops_gym_bridge.envs import make_vec_env
+    from ops_sim_ros.vec_env import OpsSb3VecEnv
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    venv = make_vec_env("inprocess", 3, "easy", n_envs=4, seed=0)
+    assert isinstance(venv, VecMonitor) and isinstance(venv.venv, OpsSb3VecEnv)
+    assert venv.num_envs == 4
+    venv.reset()
+    for _ in range(200):
+        _, _, dones, infos = venv.step(np.zeros((4, 3), np.float32))
+    assert dones.all() and all("episode" in i and "power" in i["episode"] for i in infos)
+    venv.close()
