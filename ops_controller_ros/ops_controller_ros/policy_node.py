@@ -21,6 +21,7 @@ from ops_sim_ros.node_params import ParamSpec, declare_all
 from ops_sim_ros.observation import ObservationSpec, build_observation, pulse_energies_from_trace
 from ops_sim_ros.ros_interface import (
     QOS_RELIABLE,
+    QOS_STATE,
     TOPIC_DELAY_CMD,
     TOPIC_DELAYS,
     TOPIC_INTENSITY,
@@ -90,7 +91,7 @@ class PolicyNode(Node):
         self._steps = 0
         self._last_power = float("nan")
 
-        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_RELIABLE)
+        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
         self.create_subscription(Float32MultiArray, TOPIC_INTENSITY, self._on_trace, QOS_RELIABLE)
         self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
@@ -149,12 +150,22 @@ class PolicyNode(Node):
         self._pub_cmd.publish(float_array_msg(command))
 
     def _watchdog(self):
-        if self._pending is not None and time.monotonic() - self._sent_at > self._timeout:
+        now = time.monotonic()
+        if self._pending is not None and now - self._sent_at > self._timeout:
             self.get_logger().warning(
                 "no reading for the last command: re-sending (simulator slow or restarted?)",
                 throttle_duration_sec=5.0,
             )
             self._send(self._pending)
+        elif (
+            self._pending is None
+            and self._delays is not None
+            and self._steps == 0
+            and now - self._sent_at > self._timeout
+        ):
+            # Set-points known (latched) but no reading: a lockstep simulator waits for a
+            # command. Commanding the current set-points changes nothing and makes it step.
+            self._send(self._delays.copy())
 
     def _log_progress(self):
         if self._steps:

@@ -17,6 +17,7 @@ import numpy as np
 from ops_sim_ros.node_params import ParamSpec, declare_all
 from ops_sim_ros.ros_interface import (
     QOS_RELIABLE,
+    QOS_STATE,
     TOPIC_DELAY_CMD,
     TOPIC_DELAYS,
     TOPIC_POWER,
@@ -115,7 +116,7 @@ class SpgdNode(Node):
         self._next_allowed = 0.0
 
         # Delays first: when both are ready the executor takes them in creation order.
-        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_RELIABLE)
+        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
         self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
         self.create_timer(0.05, self._watchdog)

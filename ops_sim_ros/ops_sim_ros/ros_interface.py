@@ -6,6 +6,7 @@ Delays are femtoseconds relative to each stage's nominal stacking delay (see doc
 
 from __future__ import annotations
 
+import array
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -14,7 +15,7 @@ import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 
 TOPIC_INTENSITY = "ops/intensity"
@@ -27,8 +28,14 @@ TOPIC_DIAGNOSTICS = "/diagnostics"
 
 #: Outputs and commands: reliable, a short queue. A flood of commands is bounded by the depth.
 QOS_RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-QOS_LATEST = QoSProfile(
-    depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
+#: ``ops/delays`` is state: latched (transient local, last value only), so a controller that
+#: starts later - even against a lockstep simulator that publishes only when commanded - learns
+#: the current set-points at once. Volatile subscribers match it too and see only new values.
+QOS_STATE = QoSProfile(
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 
 
@@ -51,7 +58,9 @@ def float_array_msg(values, labels: Sequence[str] = ("stage",)) -> Float32MultiA
         MultiArrayDimension(label=label, size=int(size), stride=int(stride))
         for label, size, stride in zip(labels, arr.shape, strides, strict=True)
     ]
-    msg.data = arr.ravel().tolist()
+    data = array.array("f")
+    data.frombytes(arr.tobytes())  # the fast path of the generated setter: no per-element checks
+    msg.data = data
     return msg
 
 

@@ -22,6 +22,7 @@ from .config import MAX_STAGE, MODES, SPLITS, make_config
 from .node_params import ParamSpec, check_value, declare_all
 from .ros_interface import (
     QOS_RELIABLE,
+    QOS_STATE,
     SERVICE_RESET,
     TOPIC_DELAY_CMD,
     TOPIC_DELAYS,
@@ -116,7 +117,7 @@ class SimNode(Node):
         )
         self._pub_power = self.create_publisher(Float32, TOPIC_POWER, QOS_RELIABLE)
         self._pub_reward = self.create_publisher(Float32, TOPIC_REWARD, QOS_RELIABLE)
-        self._pub_delays = self.create_publisher(Float32MultiArray, TOPIC_DELAYS, QOS_RELIABLE)
+        self._pub_delays = self.create_publisher(Float32MultiArray, TOPIC_DELAYS, QOS_STATE)
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset)
