@@ -428,18 +428,21 @@ def run(argv: list[str] | None = None) -> int:
         if bar is not None:
             bar.close()
     wall = time.monotonic() - t0
+    # A run that failed before its first step (e.g. no simulator) has nothing worth saving.
+    saved = error is None or model.num_timesteps > start_steps
     try:
-        _save(
-            out,
-            args,
-            params,
-            model,
-            venv,
-            command_line,
-            wall,
-            interrupted or error is not None,
-            previous,
-        )
+        if saved:
+            _save(
+                out,
+                args,
+                params,
+                model,
+                venv,
+                command_line,
+                wall,
+                interrupted or error is not None,
+                previous,
+            )
     finally:
         with contextlib.suppress(Exception):  # closing must not hide the result
             venv.close()
@@ -457,7 +460,9 @@ def run(argv: list[str] | None = None) -> int:
         )
     if error is not None:
         print(f"[train] error after {summary}: {type(error).__name__}: {error}", file=sys.stderr)
-        print(f"[train] model so far saved to {out / 'model.zip'}", file=sys.stderr, flush=True)
+        if saved:
+            print(f"[train] model so far saved to {out / 'model.zip'}", file=sys.stderr)
+        sys.stderr.flush()
         return 1
     if interrupted:
         print(

@@ -1,0 +1,97 @@
+"""train --backend ros: real SB3 training through the bridge against a real simulator process."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+
+import pytest
+from conftest import executable, start_sim
+from ops_controller_ros.policy_io import load_policy, read_metadata
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+
+
+def train(*args, timeout=150):
+    return subprocess.run(
+        [*executable("ops_gym_bridge", "train"), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+def test_train_through_the_bridge_produces_a_model(procs, tmp_path):
+    start_sim(procs, stage=2, mode="easy", namespace="/trainer", name="sim")
+    out = tmp_path / "ros_model"
+    t0 = time.monotonic()
+    done = train(
+        "--algo",
+        "sac",
+        "--stage",
+        2,
+        "--mode",
+        "easy",
+        "--backend",
+        "ros",
+        "--namespace",
+        "/trainer",
+        "--timesteps",
+        400,
+        "--seed",
+        2,
+        "--out",
+        out,
+        "--no-progress",
+        "--hyperparams",
+        "learning_starts=100",
+        "net_arch=[32,32]",
+        "batch_size=32",
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "Traceback" not in done.stderr
+    assert "[train] done: 400 steps" in done.stdout
+    meta = read_metadata(out)
+    assert meta["backend"] == "ros" and meta["timesteps"] == 400 and meta["stage"] == 2
+    loaded = load_policy(out)
+    assert loaded.model.num_timesteps == 400
+    # Two 200-step episodes went through the simulator: their returns were logged.
+    csv_text = (out / "logs" / "progress.csv").read_text()
+    assert "rollout/ep_rew_mean" in csv_text.splitlines()[0]
+    assert time.monotonic() - t0 < 150
+
+
+def test_train_without_simulator_fails_clearly(tmp_path):
+    out = tmp_path / "nothing"
+    done = train(
+        "--algo",
+        "td3",
+        "--stage",
+        3,
+        "--mode",
+        "easy",
+        "--backend",
+        "ros",
+        "--namespace",
+        "/absent",
+        "--ros-timeout",
+        1,
+        "--timesteps",
+        100,
+        "--out",
+        out,
+        "--no-progress",
+        timeout=60,
+    )
+    assert done.returncode == 1
+    assert "no simulator answered on /absent/ops/reset" in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr
+    assert not (out / "model.zip").exists()
+
+
+def test_ros_backend_needs_one_namespace_per_env(tmp_path):
+    done = train(
+        "--backend", "ros", "--n-envs", 2, "--stage", 3, "--out", tmp_path / "x", timeout=60
+    )
+    assert done.returncode == 2 and "give one --namespace per simulator" in done.stderr
