@@ -154,6 +154,21 @@ class PulseStacker:
         self.p_max = float(self.num_patterns**2 * (4.0 / 3.0) * self.t0_fs)
         self._energy_scale = self.t0_fs / self.input_energy
         self._power_scale = self.t0_fs / self.p_max
+        # Fast float32 batched path (see _fast_intensity): output columns padded to a multiple of
+        # 8 (31 -> 32 makes the GEMM ~1.5x faster), the per-stage phase reduced to a fraction of a
+        # cycle in float64 before anything is rounded to float32, 2 pi folded into the pattern bits.
+        sp = -(-self.num_slots // 8) * 8
+        self._slots_padded = sp
+        self._ctp_h = np.zeros((self.num_patterns, sp), dtype=np.float32)
+        self._ctp_h[:, : self.num_slots] = c_h.T
+        self._ctp_hv = np.zeros((self.num_patterns, 2 * sp), dtype=np.float32)
+        self._ctp_hv[:, : self.num_slots] = c_h.T
+        self._ctp_hv[:, sp : sp + self.num_slots] = c_v.T
+        self._phase_bits32 = (2.0 * np.pi * self._bits_t).astype(np.float32)  # (N, P)
+        self._neg_c32 = (-(self._bits_t - 0.5) / self.t0_fs).astype(np.float32)  # (N, P)
+        self._nodes32 = np.arctanh(x).astype(np.float32)[:, None, None]  # (K, 1, 1)
+        self._w32 = (w / (1.0 - x * x)).astype(np.float32)
+        self._buffers: dict[tuple[int, bool], tuple[np.ndarray, ...]] = {}
         # Small batches (a single env) take a float64 complex path with fewer numpy calls.
         self._ct_h_complex = self.c_h.T.astype(np.complex128)
         self._bits_t_complex = self._bits_t * (1j * self.omega0)
@@ -190,6 +205,8 @@ class PulseStacker:
         k = self.quadrature_points
         if batch == 1 and not rejected_port:
             energies, power = self._single(d)
+        elif self.dtype == np.float32:
+            energies, power, rej_inten = self._fast_intensity(d, rejected_port)
         else:
             ct = self._ct_hv if rejected_port else self._ct_h
             inten = self._intensity_at_nodes(d, ct)  # (K, B, S[*2]) |E|^2 at the nodes
@@ -201,9 +218,12 @@ class PulseStacker:
             power = p_n.sum(axis=1, dtype=np.float64) * self._power_scale
         rejected_slots = None
         if rejected_port:
-            rej = np.ascontiguousarray(inten[:, :, s:]).reshape(k, -1)
-            rejected_slots = (self._w @ rej).reshape(batch, s).astype(np.float64)
-            rejected_slots *= self._energy_scale
+            if self.dtype == np.float32:
+                rejected_slots = rej_inten
+            else:
+                rej = np.ascontiguousarray(inten[:, :, s:]).reshape(k, -1)
+                rejected_slots = (self._w @ rej).reshape(batch, s).astype(np.float64)
+                rejected_slots *= self._energy_scale
             rejected = rejected_slots.sum(axis=1)
         else:
             rejected = 1.0 - energies.sum(axis=1)
@@ -238,8 +258,69 @@ class PulseStacker:
         power = np.array([np.vdot(iw, iw) * self._power_scale])
         return energies, power
 
+    def _fast_intensity(
+        self, d: np.ndarray, rejected_port: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The float32 batched path: (energies (B, S), power (B,), V-port energies or None).
+
+        Same integrals as :meth:`_intensity_at_nodes` (the float64 reference), arranged for
+        fewer, cheaper passes over the (K, B, P) arrays:
+
+        * carrier phase of pattern p: 2 pi * sum_j bit_j(p) frac_j with frac_j = d_j / period
+          reduced to [-1/2, 1/2] cycle in float64, so float32 sin/cos see |phase| <= N pi;
+        * envelope: sech(u_k - c_p) = 1 / cosh(u_k - c_p), c_p = sum_j (bit_j(p) - 1/2) d_j / t0
+          (the nodes centred on the middle of the pattern spread, as in the reference);
+        * G = {cos, sin} / cosh into preallocated buffers, then ONE real GEMM with C^T padded to
+          a multiple of 8 columns (zero columns), |E|^2 and the weighted sums over the nodes.
+        """
+        batch = d.shape[0]
+        k, npat, s = self.quadrature_points, self.num_patterns, self.num_slots
+        ct = self._ctp_hv if rejected_port else self._ctp_h
+        cols = ct.shape[1]
+        key = (batch, rejected_port)
+        buf = self._buffers.get(key)
+        if buf is None:
+            if len(self._buffers) > 8:
+                self._buffers.clear()
+            buf = (
+                np.empty((2, batch, npat), dtype=np.float32),  # cos, sin of the carrier phase
+                np.empty((k, batch, npat), dtype=np.float32),  # cosh of the envelope argument
+                np.empty((2, k, batch, npat), dtype=np.float32),  # G
+                np.empty((2, k, batch, cols), dtype=np.float32),  # E (re, im) at the nodes
+            )
+            self._buffers[key] = buf
+        trig, ch, g, e = buf
+        frac = d * (1.0 / self.optical_period_fs)
+        frac -= np.rint(frac)
+        phase = frac.astype(np.float32) @ self._phase_bits32  # (B, P)
+        np.cos(phase, out=trig[0])
+        np.sin(phase, out=trig[1])
+        neg_c = d.astype(np.float32) @ self._neg_c32  # (B, P)
+        np.add(self._nodes32, neg_c, out=ch)
+        np.cosh(ch, out=ch)
+        np.divide(trig[0], ch, out=g[0])
+        np.divide(trig[1], ch, out=g[1])
+        np.matmul(g.reshape(2 * k * batch, npat), ct, out=e.reshape(2 * k * batch, cols))
+        np.square(e, out=e)
+        inten = np.add(e[0], e[1], out=e[0]).reshape(k, batch * cols)  # |E|^2 at the nodes
+        wsum = (self._w32 @ inten).reshape(batch, cols)
+        energies = np.multiply(wsum[:, :s], self._energy_scale, dtype=np.float64)
+        rejected = None
+        if rejected_port:
+            sp = cols // 2
+            rejected = np.multiply(wsum[:, sp : sp + s], self._energy_scale, dtype=np.float64)
+            inten = inten.reshape(k, batch, cols)[:, :, :sp]
+        np.square(inten, out=inten)
+        p_n = (self._w32 @ inten.reshape(k, -1)).reshape(batch, -1)
+        power = p_n.sum(axis=1, dtype=np.float64)
+        power *= self._power_scale
+        return energies, power, rejected
+
     def _intensity_at_nodes(self, d: np.ndarray, ct: np.ndarray) -> np.ndarray:
         """|E|^2 at the K quadrature nodes of every output slot: (K, B, S) (S doubled for HV).
+
+        The float64 reference path (``dtype=np.float64``); float32 stackers use
+        :meth:`_fast_intensity`, which the tests check against this one.
 
         G[c, k, b, p] = {cos, sin}(w0 s_p) * sech(u_k - (s_p - m) / t0) for c = re, im, then
         E = G @ C^T as one (2 K B, P) x (P, S) real matrix product.
