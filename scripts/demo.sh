@@ -43,12 +43,13 @@ wait_for_line "$OUT/monitor.log" "first trace received" 30
 grep -o "first trace received.*" "$OUT/monitor.log" | sed 's/^/[demo] before control: /'
 
 echo "[demo] starting the SPGD-PID controller for ${SECONDS_TO_RUN} s"
-ros2 run ops_controller_ros spgd --ros-args -p seed:=7 -p log_period_s:=0.5 \
+ros2 run ops_controller_ros spgd --ros-args -p seed:=7 -p log_period_s:=0.1 \
   >"$OUT/spgd.log" 2>&1 &
 pids+=($!)
 wait_for_line "$OUT/spgd.log" "closing the loop" 30
 sleep "$SECONDS_TO_RUN"
-grep -o "iteration .*" "$OUT/spgd.log" | sed 's/^/[demo] /'
+grep -o "iteration .*" "$OUT/spgd.log" | head -n 8 | sed "s/^/[demo] /"
+echo "[demo] ... (all lines in $OUT/spgd.log)"
 
 stop_all
 trap - EXIT
