@@ -1,0 +1,5 @@
+import sys
+
+from ops_ros2cli.cli import main
+
+sys.exit(main())

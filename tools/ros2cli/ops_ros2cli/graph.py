@@ -1,0 +1,181 @@
+"""The short-lived node every graph command uses, and discovery helpers.
+
+The real ros2cli asks its daemon, which already knows the graph. Here there is no
+daemon, so each command starts a node and spins until DDS discovery has found what
+it needs (a topic, a node, a service) or, for the list commands, until the graph
+has settled.
+"""
+
+import contextlib
+import os
+import time
+
+NODE_NAME_PREFIX = "_ros2cli"
+
+# Longest wait for discovery of a named entity (node, topic publisher) before giving up.
+DISCOVERY_TIMEOUT = 10.0
+# Time after which a command that waits for a topic warns that it is not published.
+WARNING_GRACE = 3.0
+# List commands: default total spin time, and how long the graph must be unchanged
+# (once something besides this command is visible) to stop early.
+DEFAULT_SPIN_TIME = 3.0
+SETTLE_TIME = 1.0
+SLICE = 0.05
+
+
+def add_spin_time_argument(parser):
+    parser.add_argument(
+        "--spin-time",
+        type=float,
+        default=DEFAULT_SPIN_TIME,
+        help="Spin time in seconds to wait for discovery (there is no daemon in this "
+        "ros2 subset; default: %(default)s)",
+    )
+    parser.add_argument(
+        "--no-daemon",
+        action="store_true",
+        help="Accepted for compatibility; this ros2 subset never uses a daemon",
+    )
+    parser.add_argument("--use-sim-time", action="store_true", help="Enable ROS simulation time")
+
+
+class CliNode:
+    """A hidden node (``_ros2cli_<pid>``) with rclpy initialised without signal handlers."""
+
+    def __init__(self, args=None, node_name=None):
+        import rclpy
+        from rclpy.parameter import Parameter
+        from rclpy.signals import SignalHandlerOptions
+
+        self._rclpy = rclpy
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        use_sim_time = bool(getattr(args, "use_sim_time", False))
+        self.node = rclpy.create_node(
+            node_name or f"{NODE_NAME_PREFIX}_{os.getpid()}",
+            context=self.context,
+            start_parameter_services=False,
+            parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)],
+        )
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    def close(self):
+        with contextlib.suppress(Exception):
+            self.executor.shutdown(timeout_sec=0.5)
+        with contextlib.suppress(Exception):
+            self.node.destroy_node()
+        with contextlib.suppress(Exception):
+            self._rclpy.try_shutdown(context=self.context)
+
+    def spin_once(self, timeout_sec=SLICE):
+        self.executor.spin_once(timeout_sec=timeout_sec)
+
+    def spin_for(self, seconds):
+        end = time.monotonic() + seconds
+        while True:
+            left = end - time.monotonic()
+            if left <= 0:
+                return
+            self.spin_once(min(SLICE, left))
+
+    def wait_for(self, predicate, timeout):
+        """Spin until ``predicate()`` is truthy; return its value, or None on timeout."""
+        end = None if timeout is None else time.monotonic() + timeout
+        while True:
+            value = predicate()
+            if value:
+                return value
+            if end is not None and time.monotonic() >= end:
+                return None
+            self.spin_once(SLICE)
+
+    def spin_until_future_complete(self, future, timeout=None):
+        end = None if timeout is None else time.monotonic() + timeout
+        while not future.done():
+            if end is not None and time.monotonic() >= end:
+                return False
+            self.spin_once(SLICE)
+        return True
+
+    # graph ------------------------------------------------------------------
+
+    def _signature(self):
+        node = self.node
+        topics = tuple(
+            (n, tuple(t))
+            for n, t in node.get_topic_names_and_types()
+            if n not in ("/rosout", "/parameter_events")
+        )
+        services = tuple(
+            (n, tuple(t))
+            for n, t in node.get_service_names_and_types()
+            if not n.startswith(node.get_fully_qualified_name() + "/")
+        )
+        nodes = tuple(
+            (n, ns)
+            for n, ns in node.get_node_names_and_namespaces()
+            if (n, ns) != (node.get_name(), node.get_namespace())
+        )
+        return (topics, services, nodes)
+
+    def settle_graph(self, spin_time):
+        """Spin until the graph looks complete.
+
+        Stops after ``spin_time`` seconds, or earlier once something besides this node has
+        been discovered and the graph has not changed for SETTLE_TIME seconds.
+        """
+        start = time.monotonic()
+        end = start + spin_time
+        last = self._signature()
+        last_change = start
+        while True:
+            now = time.monotonic()
+            if now >= end:
+                return
+            if any(last) and now - last_change >= SETTLE_TIME:
+                return
+            self.spin_once(SLICE)
+            sig = self._signature()
+            if sig != last:
+                last = sig
+                last_change = time.monotonic()
+
+
+def is_hidden_name(name):
+    return any(token.startswith("_") for token in name.split("/"))
+
+
+def full_node_name(name, namespace):
+    return namespace + ("" if namespace.endswith("/") else "/") + name
+
+
+def get_node_names(node, include_hidden_nodes=False):
+    names = []
+    for name, namespace in node.get_node_names_and_namespaces():
+        full = full_node_name(name, namespace)
+        if not include_hidden_nodes and is_hidden_name(full):
+            continue
+        names.append(full)
+    return names
+
+
+def absolute_node_name(name):
+    if not name:
+        return name
+    return name if name.startswith("/") else "/" + name
+
+
+def expand_topic(node, topic_name):
+    from rclpy.expand_topic_name import expand_topic_name
+
+    return expand_topic_name(topic_name, node.get_name(), node.get_namespace())
