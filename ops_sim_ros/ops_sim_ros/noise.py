@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+_FOREVER = 1 << 62
+
 
 class DelayNoise:
     """Stateful noise generator for ``num_envs`` x ``stage`` delay lines (all values in fs)."""
@@ -62,6 +64,7 @@ class DelayNoise:
         self.mu = np.zeros(shape)
         self.slope = np.zeros(shape)
         self.steps_left = np.zeros(shape, dtype=np.int64)
+        self._bound_safe = self._knot_in = _FOREVER
         if self.drift_enabled:
             self._redraw(np.ones(shape, dtype=bool))
 
@@ -71,6 +74,18 @@ class DelayNoise:
         sign = np.where(self.rng.random(count) < 0.5, -1.0, 1.0)
         self.slope[where] = mag * sign
         self.steps_left[where] = self.rng.integers(self.knot_min, self.knot_max + 1, size=count)
+        self._knot_in = int(self.steps_left.min())
+        self._update_bound_safe()
+
+    def _update_bound_safe(self) -> None:
+        """Steps that can skip the |mu| > bound check: |mu| grows by at most max|slope| a step,
+        so for ``_bound_safe`` steps no element can cross (one step of margin for rounding)."""
+        speed = float(np.abs(self.slope).max()) if self.slope.size else 0.0
+        room = self.bound - float(np.abs(self.mu).max(initial=0.0))
+        if speed == 0.0 or not np.isfinite(room):
+            self._bound_safe = _FOREVER
+        else:
+            self._bound_safe = max(int(room / speed) - 1, 0)
 
     def sample(self, advance: bool = True) -> np.ndarray:
         """Return e_t, shape (num_envs, stage), in fs; ``advance``: move the drift one step first.
@@ -81,16 +96,26 @@ class DelayNoise:
         e = self.rng.standard_normal((self.num_envs, self.stage))
         e *= self.sigma
         if not advance:
-            return e + self.mu
+            e += self.mu
+            return e
         self.global_step += 1
         if self.drift_enabled:
             self.mu += self.slope
-            out = np.abs(self.mu) > self.bound
-            if out.any():
-                self.slope[out] = -np.sign(self.mu[out]) * np.abs(self.slope[out])
+            # The bound and knot checks only run when they can fire (counters kept by _redraw
+            # and _update_bound_safe); the result is the same as checking every step.
+            self._bound_safe -= 1
+            if self._bound_safe < 0:
+                out = np.abs(self.mu) > self.bound
+                if out.any():
+                    self.slope[out] = -np.sign(self.mu[out]) * np.abs(self.slope[out])
+                self._update_bound_safe()
             self.steps_left -= 1
-            knot = self.steps_left <= 0
-            if knot.any():
-                self._redraw(knot)
+            self._knot_in -= 1
+            if self._knot_in <= 0:
+                knot = self.steps_left <= 0
+                if knot.any():
+                    self._redraw(knot)
+                else:
+                    self._knot_in = int(self.steps_left.min())
             e += self.mu
         return e

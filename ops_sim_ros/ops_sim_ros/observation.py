@@ -99,18 +99,22 @@ def build_observation(spec: ObservationSpec, pulse_energies, power, setpoints_fs
     """
     e = np.asarray(pulse_energies, dtype=np.float64)
     single = e.ndim == 1
-    e2 = e.reshape(-1, spec.num_slots)
+    slots = 2**spec.stage - 1
+    e2 = e.reshape(-1, slots)
     batch = e2.shape[0]
-    parts = []
+    low, high = spec._bounds
+    obs = np.empty((batch, low.shape[0]), dtype=np.float32)
+    col = 0
+    # Each block is written straight into the float32 array (float64 values rounded once).
     if spec.include_energies:
-        parts.append(e2)
+        obs[:, :slots] = e2
+        col = slots
     if spec.include_power:
-        parts.append(np.asarray(power, dtype=np.float64).reshape(batch, 1))
+        obs[:, col] = np.asarray(power, dtype=np.float64).reshape(batch)
+        col += 1
     if spec.include_setpoints:
         sp = np.asarray(setpoints_fs, dtype=np.float64).reshape(batch, spec.stage)
-        parts.append(sp * (1.0 / spec.optical_period_fs))
-    obs = np.concatenate(parts, axis=1, dtype=np.float32)
-    low, high = spec._bounds
+        np.multiply(sp, 1.0 / spec.optical_period_fs, out=obs[:, col:])
     _clip(obs, low, high, out=obs)
     return obs[0] if single else obs
 

@@ -131,3 +131,40 @@ def test_simulation_seeding_and_partial_reset():
     np.testing.assert_array_equal(r.setpoints_fs[[0, 2]], before[[0, 2]])
     assert r.step_count.tolist() == [10, 0, 10]
     assert a.trace(r).shape == (3, 7 * cfg.samples_per_slot)
+
+
+def _reference_drift_step(mu, slope, steps_left, bound, redraw):
+    """The drift update checked every step (what DelayNoise.sample must equal)."""
+    mu += slope
+    out = np.abs(mu) > bound
+    if out.any():
+        slope[out] = -np.sign(mu[out]) * np.abs(slope[out])
+    steps_left -= 1
+    knot = steps_left <= 0
+    if knot.any():
+        redraw(knot)
+
+
+@pytest.mark.parametrize("bound, knots", [(0.5, (3, 9)), (2.0, (0, 4)), (np.inf, (50, 60))])
+def test_drift_with_skipped_checks_equals_checking_every_step(bound, knots):
+    kw = dict(
+        num_envs=3,
+        stage=4,
+        jitter_sigma_fs=0.01,
+        drift_slope_min_fs=0.01,
+        drift_slope_max_fs=0.08,
+        drift_knot_min_steps=knots[0],
+        drift_knot_max_steps=knots[1],
+        drift_bound_fs=bound,
+    )
+    fast = DelayNoise(rng=np.random.default_rng(7), **kw)
+    ref = DelayNoise(rng=np.random.default_rng(7), **kw)
+    for step in range(3000):
+        got = fast.sample(advance=step % 97 != 0)
+        e = ref.rng.standard_normal((3, 4)) * ref.sigma
+        if step % 97 != 0:
+            _reference_drift_step(ref.mu, ref.slope, ref.steps_left, ref.bound, ref._redraw)
+        np.testing.assert_array_equal(got, e + ref.mu)
+        np.testing.assert_array_equal(fast.slope, ref.slope)
+    if np.isfinite(bound):
+        assert np.abs(fast.mu).max() <= bound + 0.08
