@@ -24,7 +24,7 @@ def add_verbs(verbs):
 
 def main_list(args):
     with graph.CliNode(args) as cli:
-        cli.settle_graph(args.spin_time)
+        cli.settle_graph(graph.list_spin_time(args))
         names = graph.get_node_names(cli.node, include_hidden_nodes=args.all)
     if len(names) != len(set(names)):
         print(

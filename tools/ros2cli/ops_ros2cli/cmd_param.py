@@ -70,12 +70,13 @@ def add_verbs(verbs):
     p.set_defaults(_main=main_set)
 
 
-def _wait_for_node(cli, node_name, include_hidden):
-    """Wait (up to DISCOVERY_TIMEOUT) for the node; return True when it is in the graph."""
+def _wait_for_node(cli, node_name, args):
+    """Wait (up to the discovery timeout) for the node; True when it is in the graph."""
+    include_hidden = args.include_hidden_nodes
     return bool(
         cli.wait_for(
             lambda: node_name in graph.get_node_names(cli.node, include_hidden),
-            graph.DISCOVERY_TIMEOUT,
+            graph.discovery_timeout(args),
         )
     )
 
@@ -101,11 +102,11 @@ def main_list(args):
     node_name = graph.absolute_node_name(args.node_name)
     with graph.CliNode(args) as cli:
         if node_name:
-            if not _wait_for_node(cli, node_name, args.include_hidden_nodes):
+            if not _wait_for_node(cli, node_name, args):
                 return "Node not found"
             node_names = [node_name]
         else:
-            cli.settle_graph(args.spin_time)
+            cli.settle_graph(graph.list_spin_time(args))
             node_names = sorted(set(graph.get_node_names(cli.node, args.include_hidden_nodes)))
         for name in node_names:
             try:
@@ -142,7 +143,7 @@ def main_get(args):
 
     node_name = graph.absolute_node_name(args.node_name)
     with graph.CliNode(args) as cli:
-        if not _wait_for_node(cli, node_name, args.include_hidden_nodes):
+        if not _wait_for_node(cli, node_name, args):
             return "Node not found"
         request = GetParameters.Request()
         request.names = [args.parameter_name]
@@ -194,7 +195,7 @@ def main_set(args):
 
     node_name = graph.absolute_node_name(args.node_name)
     with graph.CliNode(args) as cli:
-        if not _wait_for_node(cli, node_name, args.include_hidden_nodes):
+        if not _wait_for_node(cli, node_name, args):
             return "Node not found"
         parameter = Parameter()
         parameter.name = args.parameter_name

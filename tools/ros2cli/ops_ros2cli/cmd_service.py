@@ -66,7 +66,7 @@ def _service_names_and_types(node, include_hidden):
 
 def main_list(args):
     with graph.CliNode(args) as cli:
-        cli.settle_graph(args.spin_time)
+        cli.settle_graph(graph.list_spin_time(args))
         services = _service_names_and_types(cli.node, args.include_hidden_services)
     if args.count_services:
         print(len(services))
@@ -83,7 +83,8 @@ def main_type(args):
     with graph.CliNode(args) as cli:
         name = args.service_name if args.service_name.startswith("/") else "/" + args.service_name
         found = cli.wait_for(
-            lambda: dict(cli.node.get_service_names_and_types()).get(name), graph.DISCOVERY_TIMEOUT
+            lambda: dict(cli.node.get_service_names_and_types()).get(name),
+            graph.discovery_timeout(args),
         )
     if not found:
         return 1

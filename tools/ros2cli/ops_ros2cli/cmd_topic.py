@@ -220,7 +220,7 @@ def _topic_names_and_types(node, include_hidden_topics=False):
 
 def main_list(args):
     with graph.CliNode(args) as cli:
-        cli.settle_graph(args.spin_time)
+        cli.settle_graph(graph.list_spin_time(args))
         topics = _topic_names_and_types(cli.node, args.include_hidden_topics)
     if args.count_topics:
         print(len(topics))
@@ -237,7 +237,8 @@ def main_type(args):
     with graph.CliNode(args) as cli:
         name = graph.expand_topic(cli.node, args.topic_name)
         found = cli.wait_for(
-            lambda: dict(cli.node.get_topic_names_and_types()).get(name), graph.DISCOVERY_TIMEOUT
+            lambda: dict(cli.node.get_topic_names_and_types()).get(name),
+            graph.discovery_timeout(args),
         )
     if not found:
         return 1

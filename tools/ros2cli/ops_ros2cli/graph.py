@@ -16,10 +16,11 @@ NODE_NAME_PREFIX = "_ros2cli"
 DISCOVERY_TIMEOUT = 10.0
 # Time after which a command that waits for a topic warns that it is not published.
 WARNING_GRACE = 3.0
-# List commands: default total spin time, and how long the graph must be unchanged
-# (once something besides this command is visible) to stop early.
+# List commands: default spin time, then how long the graph must have been unchanged to stop
+# (at most SETTLE_EXTRA more seconds).
 DEFAULT_SPIN_TIME = 3.0
 SETTLE_TIME = 1.0
+SETTLE_EXTRA = 2.0
 SLICE = 0.05
 
 
@@ -27,9 +28,11 @@ def add_spin_time_argument(parser):
     parser.add_argument(
         "--spin-time",
         type=float,
-        default=DEFAULT_SPIN_TIME,
-        help="Spin time in seconds to wait for discovery (there is no daemon in this "
-        "ros2 subset; default: %(default)s)",
+        default=None,
+        help="Spin time in seconds to wait for discovery (there is no daemon in this ros2 "
+        f"subset). Listing commands spin up to {DEFAULT_SPIN_TIME} s by default (less once the "
+        f"graph has settled); commands that wait for a named node or topic give up after "
+        f"{DISCOVERY_TIMEOUT} s by default",
     )
     parser.add_argument(
         "--no-daemon",
@@ -129,26 +132,35 @@ class CliNode:
         return (topics, services, nodes)
 
     def settle_graph(self, spin_time):
-        """Spin until the graph looks complete.
+        """Spin ``spin_time`` seconds for discovery, longer while the graph still changes.
 
-        Stops after ``spin_time`` seconds, or earlier once something besides this node has
-        been discovered and the graph has not changed for SETTLE_TIME seconds.
+        After ``spin_time``, spinning goes on until the graph has not changed for SETTLE_TIME
+        seconds, for at most SETTLE_EXTRA more seconds.
         """
         start = time.monotonic()
-        end = start + spin_time
         last = self._signature()
         last_change = start
         while True:
             now = time.monotonic()
-            if now >= end:
-                return
-            if any(last) and now - last_change >= SETTLE_TIME:
+            if now >= start + spin_time and (
+                now - last_change >= SETTLE_TIME or now >= start + spin_time + SETTLE_EXTRA
+            ):
                 return
             self.spin_once(SLICE)
             sig = self._signature()
             if sig != last:
                 last = sig
                 last_change = time.monotonic()
+
+
+def list_spin_time(args):
+    value = getattr(args, "spin_time", None)
+    return DEFAULT_SPIN_TIME if value is None else value
+
+
+def discovery_timeout(args):
+    value = getattr(args, "spin_time", None)
+    return DISCOVERY_TIMEOUT if value is None else value
 
 
 def is_hidden_name(name):
