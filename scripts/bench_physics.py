@@ -3,7 +3,10 @@
 batch of 1024 envs (BatchedSimulation.step_increments + build_observation, i.e. the vector env's
 work per step), plus peak memory. Writes its table into docs/benchmarks.md (own section).
 
-Usage: PYTHONPATH=ops_sim_ros python scripts/bench_physics.py [--batch 1024] [--no-write]
+Usage: OPENBLAS_NUM_THREADS=1 PYTHONPATH=ops_sim_ros python scripts/bench_physics.py
+       [--batch 1024] [--stages 1,2,...,8] [--repeats 5] [--no-write]
+The machine is shared: every number is the best of --repeats timed runs, and the section records
+the 1-minute load average and whether each goal of issue 3 was met in this run.
 """
 
 from __future__ import annotations
@@ -138,6 +141,15 @@ def main() -> None:
         )
         lines.append(f"| {n} | {us:.1f} | {single:,.0f} | {br:,.0f} | {vs} | {mb:.0f} |")
     lines += ["", *goal_lines({r[0]: r for r in rows}, args.batch, load)]
+    lines += [
+        "",
+        "Where the time goes: the batched float32 path is `PulseStacker._fast_intensity` (float32 "
+        "sin/cos/cosh on (K, B, 2^N) arrays in reused buffers, one real GEMM with C^T padded to a "
+        "multiple of 8 columns); one env takes the float64 `_single` path and is bound by numpy "
+        "call overhead (~0.5-2 us a call on this machine). With the default multi-threaded "
+        "OpenBLAS on a loaded machine, small matrix products can stall (7.5 ms per N=7 step was "
+        "seen); `OPENBLAS_NUM_THREADS=1` avoids it.",
+    ]
     table = "\n".join(lines) + "\n"
     print(table)
     if args.no_write:

@@ -168,3 +168,22 @@ def test_drift_with_skipped_checks_equals_checking_every_step(bound, knots):
         np.testing.assert_array_equal(fast.slope, ref.slope)
     if np.isfinite(bound):
         assert np.abs(fast.mu).max() <= bound + 0.08
+
+
+@pytest.mark.parametrize("num_envs", [1, 3])
+def test_step_result_fields_equal_the_physics_output(num_envs):
+    """The simulation's per-step path (scalar for one env, arrays for a batch) reports exactly
+    what PulseStacker.evaluate gives for the applied delays, and reward = -(1 - power)^2."""
+    cfg = make_config(stage=4, mode="hard")
+    sim = BatchedSimulation(cfg, num_envs=num_envs, seed=11)
+    sim.reset()
+    for _ in range(5):
+        r = sim.step_increments(np.full((num_envs, 4), 0.7))
+        want = sim.stacker.evaluate(r.applied_fs)
+        np.testing.assert_allclose(r.power, want.power, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(r.pulse_energies, want.slot_energies, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(r.main_pulse_energy, want.main_pulse_energy, atol=1e-12)
+        np.testing.assert_allclose(r.rejected_energy, want.rejected_energy, atol=1e-12)
+        np.testing.assert_array_equal(r.reward, -((1.0 - r.power) ** 2))
+        for arr in (r.power, r.reward, r.main_pulse_energy, r.rejected_energy):
+            assert arr.shape == (num_envs,) and arr.dtype == np.float64
