@@ -18,6 +18,40 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 
+def executable(package: str, name: str) -> list[str]:
+    """Command line of ``ros2 run package name``, as a user types it."""
+    return [*ros2_command(), "run", package, name]
+
+
+def start_sim(
+    group: ProcessGroup,
+    stage: int = 3,
+    mode: str = "easy",
+    namespace: str = "",
+    lockstep: bool = True,
+    seed: int = 1,
+    name: str = "sim",
+):
+    """Start ``ops_sim`` and wait until it runs."""
+    args = [
+        *executable("ops_sim_ros", "sim"),
+        "--ros-args",
+        "-p",
+        f"stage:={stage}",
+        "-p",
+        f"mode:={mode}",
+        "-p",
+        f"lockstep:={'true' if lockstep else 'false'}",
+        "-p",
+        f"seed:={seed}",
+    ]
+    if namespace:
+        args += ["-r", f"__ns:={namespace}"]
+    proc = group.start(args, name=name)
+    proc.wait_for(rf"stage={stage} mode={mode}", timeout=30)
+    return proc
+
+
 def ros2_command() -> list[str]:
     """The `ros2` a user has after `source setup.bash`."""
     exe = shutil.which("ros2")

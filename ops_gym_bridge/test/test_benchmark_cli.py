@@ -6,7 +6,7 @@ import json
 import subprocess
 
 import pytest
-from conftest import executable
+from ros_testing import executable
 
 pytestmark = pytest.mark.timeout(180)
 

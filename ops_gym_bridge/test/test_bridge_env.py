@@ -9,13 +9,13 @@ import time
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import start_sim
 from ops_gym_bridge.bridge_env import (
     LockstepError,
     RosOpsEnv,
     SimulatorTimeoutError,
     StageMismatchError,
 )
+from ros_testing import start_sim
 
 from ops_gym_bridge import ENV_ID
 from ops_sim_ros import OpsEnv

@@ -11,8 +11,8 @@ import subprocess
 
 import numpy as np
 import pytest
-from conftest import executable
 from ops_controller_ros.policy_io import PolicyLoadError, check_stage, load_policy, read_metadata
+from ros_testing import executable
 
 from ops_sim_ros import OpsEnv
 

@@ -6,8 +6,8 @@ import subprocess
 import time
 
 import pytest
-from conftest import executable, start_sim
 from ops_controller_ros.policy_io import load_policy, read_metadata
+from ros_testing import executable, start_sim
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 

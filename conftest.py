@@ -1,4 +1,4 @@
-"""Fixtures of the integration tests: isolation and real processes.
+"""Fixtures of every test folder (packages' test/ and the integration tests in test/).
 
 Isolation: each test module gets its own ROS_DOMAIN_ID (unique within this pytest process, and
 offset by the pid so that two test runs on one machine rarely meet), and DDS discovery is kept on
@@ -10,8 +10,14 @@ from __future__ import annotations
 
 import itertools
 import os
+import sys
+from pathlib import Path
 
 import pytest
+
+# The helpers of the integration tests (test/ros_testing.py) serve every package's tests.
+sys.path.insert(0, str(Path(__file__).resolve().parent / "test"))
+
 from ros_testing import ProcessGroup
 
 _domains = itertools.count()
@@ -40,6 +46,14 @@ def ros_domain():
 @pytest.fixture
 def procs(tmp_path):
     group = ProcessGroup(tmp_path)
+    yield group
+    group.stop_all()
+
+
+@pytest.fixture(scope="module")
+def module_procs(tmp_path_factory):
+    """Processes shared by the tests of one module, stopped when the module ends."""
+    group = ProcessGroup(tmp_path_factory.mktemp("procs"))
     yield group
     group.stop_all()
 
