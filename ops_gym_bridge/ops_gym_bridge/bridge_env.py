@@ -105,6 +105,8 @@ class RosOpsEnv(gym.Env):
         self._setpoints: np.ndarray | None = None
         self._steps = 0
         self._late_possible = False  # an earlier wait timed out: old answers may still arrive
+        self._timed_out = False  # a wait timed out since the last successful reset
+        self._lockstep_checked = False
         self._closed = False
         if self.spec is None:  # direct construction: declare the nondeterminism gym.make would
             from gymnasium.envs.registration import EnvSpec
@@ -219,21 +221,26 @@ class RosOpsEnv(gym.Env):
             for q in self._queues.values():
                 q.clear()
             now = time.monotonic()
+            if now >= end:  # a flood never goes quiet: stop at the deadline all the same
+                return seen
             if got:
                 quiet_since = now
-            elif grace_s <= 0 or now - quiet_since >= grace_s or now >= end:
+            elif grace_s <= 0 or now - quiet_since >= grace_s:
                 return seen
 
-    def _prepare(self) -> None:
-        """Before a request: drop old messages; refuse a simulator that is not in lockstep."""
+    def _prepare(self, strict: bool) -> None:
+        """Before a request: drop old messages. ``strict`` (a step): in lockstep nothing may have
+        been published since the last answer, so anything found means crossed wires."""
         if self._late_possible:
             self._drain(grace_s=0.2)
             self._late_possible = False
             return
-        if self._drain() > 1:
+        unsolicited = self._drain()
+        if strict and unsolicited and not self._timed_out:
             raise LockstepError(
-                f"the simulator publishes without being commanded ({self._where}): start it with "
-                "-p lockstep:=true, and let no other node command it"
+                f"the simulator published {unsolicited} output set(s) that no command of this "
+                f"bridge caused ({self._where}); it is free-running (start it with "
+                "-p lockstep:=true) or another node is commanding it"
             )
 
     def _hint(self) -> str:
@@ -246,6 +253,36 @@ class RosOpsEnv(gym.Env):
                 else ""
             )
         )
+
+    def _check_lockstep_parameter(self) -> None:
+        """Ask the simulator node (``ops_sim`` in our namespace) whether it runs in lockstep.
+
+        A simulator that does not expose the parameter (another node name, a real rig) is
+        trusted; the protocol checks in ``step`` still catch unsolicited outputs.
+        """
+        from rcl_interfaces.srv import GetParameters
+
+        client = self._node.create_client(GetParameters, "ops_sim/get_parameters")
+        try:
+            if not client.wait_for_service(timeout_sec=min(self.timeout_s, 1.0)):
+                self._lockstep_checked = True
+                return
+            future = client.call_async(GetParameters.Request(names=["lockstep"]))
+            if not self._spin_until(future.done, time.monotonic() + self.timeout_s):
+                client.remove_pending_request(future)
+                return
+            values = future.result().values if future.result() is not None else []
+            self._lockstep_checked = True
+            # ParameterType.PARAMETER_BOOL == 1
+            if values and values[0].type == 1 and not values[0].bool_value:
+                raise LockstepError(
+                    f"the simulator runs free (parameter lockstep is false; {self._where}): the "
+                    "bridge needs one step per command; start it with -p lockstep:=true or set "
+                    f"it live: ros2 param set {self._node.get_namespace().rstrip('/')}/ops_sim "
+                    "lockstep true"
+                )
+        finally:
+            self._node.destroy_client(client)
 
     # ------------------------------------------------------------------ waiting for answers
     def _check_stage(self, delays_msg) -> None:
@@ -281,6 +318,7 @@ class RosOpsEnv(gym.Env):
 
         if not self._spin_until(find, deadline):
             self._late_possible = True
+            self._timed_out = True
             got = {t: len(q[t]) for t in _TOPICS}
             if command is not None and q["delays"]:
                 echo = np.asarray(q["delays"][-1].data)
@@ -295,6 +333,13 @@ class RosOpsEnv(gym.Env):
                 f"died? {self._hint()}"
             )
         k = index[0]
+        if command is not None and k > 0 and not self._timed_out:
+            # In lockstep nothing is published between our drain and our command's answer.
+            raise LockstepError(
+                f"{what}: the simulator published {k} output set(s) that no command of this "
+                f"bridge caused ({self._where}); it is free-running (start it with "
+                "-p lockstep:=true) or another node is commanding it"
+            )
         out = tuple(q[t][k] for t in _TOPICS)
         for t in _TOPICS:
             for _ in range(k + 1):
@@ -326,8 +371,6 @@ class RosOpsEnv(gym.Env):
         self._check_open()
         super().reset(seed=seed)
         t0 = time.monotonic()
-        deadline = t0 + self.timeout_s
-        self._prepare()
         if not self._reset_client.wait_for_service(timeout_sec=self.timeout_s):
             raise SimulatorTimeoutError(
                 f"no simulator answered on {self._reset_topic} within {self.timeout_s:g} s "
@@ -346,10 +389,16 @@ class RosOpsEnv(gym.Env):
                 f"the simulator's reset service answers but its topics did not connect within "
                 f"{self.timeout_s:g} s ({self._where}); {self._hint()}"
             )
+        if not self._lockstep_checked:
+            self._check_lockstep_parameter()
+            # A simulator publishes its initial state once when it starts: let that settle.
+            self._drain(grace_s=0.1)
+        self._prepare(strict=False)
         deadline = time.monotonic() + self.timeout_s
         future = self._reset_client.call_async(self._trigger.Request())
         if not self._spin_until(future.done, deadline):
             self._late_possible = True
+            self._timed_out = True
             self._reset_client.remove_pending_request(future)
             raise SimulatorTimeoutError(
                 f"the simulator did not answer the reset request on {self._reset_topic} within "
@@ -361,6 +410,7 @@ class RosOpsEnv(gym.Env):
                 f"the simulator refused the reset: {getattr(response, 'message', '')}"
             )
         msgs = self._collect(None, deadline, "reset")
+        self._timed_out = False
         self._steps = 0
         obs, info = self._observe(msgs)
         info["step_time_s"] = time.monotonic() - t0
@@ -374,7 +424,7 @@ class RosOpsEnv(gym.Env):
         a = np.clip(np.asarray(action, dtype=np.float64).reshape(self.stage), -1.0, 1.0)
         command = np.clip(self._setpoints + a * self.max_step_fs, -self.range_fs, self.range_fs)
         command = command.astype(np.float32).astype(np.float64)  # what the message carries
-        self._prepare()
+        self._prepare(strict=True)
         msg = self._float_array()
         msg.data = command.tolist()
         self._pub.publish(msg)
@@ -398,7 +448,7 @@ class RosOpsEnv(gym.Env):
             .astype(np.float64)
         )
         t0 = time.monotonic()
-        self._prepare()
+        self._prepare(strict=True)
         msg = self._float_array()
         msg.data = command.tolist()
         self._pub.publish(msg)

@@ -30,6 +30,15 @@ def sim3(module_procs):
 
 
 @pytest.fixture
+def observer_bridge(sim3):
+    from ros_testing import TopicObserver
+
+    obs = TopicObserver(namespace="/bridge")
+    yield obs
+    obs.close()
+
+
+@pytest.fixture
 def bridge(sim3):
     env = RosOpsEnv(stage=3, mode="easy", namespace="/bridge", timeout_s=10.0)
     yield env
@@ -197,10 +206,30 @@ def test_free_running_simulator_is_refused(procs):
     sim = start_sim(procs, stage=3, mode="easy", namespace="/free", lockstep=False, name="free")
     env = RosOpsEnv(stage=3, mode="easy", namespace="/free", timeout_s=5.0)
     try:
-        with pytest.raises((LockstepError, SimulatorTimeoutError), match="lockstep"):
+        with pytest.raises(LockstepError, match=r"lockstep is false.*-p lockstep:=true"):
             env.reset()
-            for _ in range(50):
-                env.step(np.zeros(3))
     finally:
         env.close()
         sim.stop()
+
+
+def test_unsolicited_outputs_are_detected(sim3, observer_bridge):
+    """Crossed wires: another node commands the same simulator between two steps."""
+    env = RosOpsEnv(stage=3, mode="easy", namespace="/bridge", timeout_s=5.0)
+    try:
+        env.reset()
+        env.step(np.zeros(3))
+        observer_bridge.wait_for_subscriber()
+        observer_bridge.send([0.3, 0.2, 0.1])
+        observer_bridge.wait_until(
+            lambda: (
+                observer_bridge.last("delays") is not None
+                and np.allclose(observer_bridge.last("delays"), [0.3, 0.2, 0.1], atol=1e-5)
+            ),
+            timeout=10,
+            what="the other node's command applied",
+        )
+        with pytest.raises(LockstepError, match="another node"):
+            env.step(np.zeros(3))
+    finally:
+        env.close()
