@@ -7,8 +7,6 @@ The prefix holds a package ``demo_pkg`` with executables in ``lib/demo_pkg``, fo
 from __future__ import annotations
 
 import os
-import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -108,32 +106,12 @@ def make_ament_prefix(root: Path) -> Path:
     return root
 
 
-def ros2_command() -> list[str]:
-    """The `ros2` a user has on PATH; `python -m ops_ros2cli` only when there is none."""
-    exe = shutil.which("ros2")
-    if exe is not None:
-        return [exe]
-    return [sys.executable, "-m", "ops_ros2cli"]
-
-
 def env_with_prefix(prefix: Path) -> dict[str, str]:
     env = dict(os.environ)
     paths = [str(prefix)] + [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
     env["AMENT_PREFIX_PATH"] = os.pathsep.join(paths)
     env["PYTHONUNBUFFERED"] = "1"
     return env
-
-
-def run(*args: str, env: dict[str, str], timeout: float = 40.0) -> subprocess.CompletedProcess:
-    """Run `ros2 ARGS` to completion, as a user would, and capture its output."""
-    return subprocess.run(
-        [*ros2_command(), *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env=env,
-        stdin=subprocess.DEVNULL,
-    )
 
 
 def pid_alive(pid: int) -> bool:

@@ -35,6 +35,7 @@ from ops_sim_ros.ros_interface import (
 from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
+from .command_tracker import CommandTracker
 from .policy_io import PolicyLoadError, check_stage, load_policy
 
 PARAMS = [
@@ -56,7 +57,6 @@ PARAMS = [
         low_exclusive=True,
     ),
 ]
-_MATCH_TOL_FS = 1e-3
 
 
 class PolicyNode(Node):
@@ -81,11 +81,8 @@ class PolicyNode(Node):
             if self._increment
             else (config.absolute_action_range_fs if config else self._policy.max_step_fs)
         )
-        self._timeout = v["timeout_s"]
 
-        self._pending: np.ndarray | None = None
-        self._sent_at = 0.0
-        self._matched = False
+        self._tracker = CommandTracker(v["timeout_s"])
         self._delays: np.ndarray | None = None
         self._trace: tuple[np.ndarray, int] | None = None
         self._steps = 0
@@ -114,16 +111,14 @@ class PolicyNode(Node):
             self.get_logger().info("simulator found: running the policy")
         self._delays = delays
         self._trace = None
-        self._matched = self._pending is None or np.allclose(
-            delays, self._pending, rtol=0.0, atol=_MATCH_TOL_FS
-        )
+        self._tracker.on_setpoints(delays, accept_without_command=True)
 
     def _on_trace(self, msg: Float32MultiArray):
-        if self._matched:
+        if self._tracker.matched:
             self._trace = trace_from_msg(msg)
 
     def _on_power(self, msg: Float32):
-        if not self._matched or self._trace is None or not np.isfinite(msg.data):
+        if not self._tracker.matched or self._trace is None or not np.isfinite(msg.data):
             return
         trace, samples = self._trace
         energies = pulse_energies_from_trace(trace, samples)
@@ -144,24 +139,21 @@ class PolicyNode(Node):
         self._send(command)
 
     def _send(self, command: np.ndarray):
-        self._pending = command
-        self._matched = False
-        self._sent_at = time.monotonic()
-        self._pub_cmd.publish(float_array_msg(command))
+        self._pub_cmd.publish(float_array_msg(self._tracker.sent(command, time.monotonic())))
 
     def _watchdog(self):
         now = time.monotonic()
-        if self._pending is not None and now - self._sent_at > self._timeout:
+        if self._tracker.overdue(now):
             self.get_logger().warning(
                 "no reading for the last command: re-sending (simulator slow or restarted?)",
                 throttle_duration_sec=5.0,
             )
-            self._send(self._pending)
+            self._send(self._tracker.pending)
         elif (
-            self._pending is None
+            self._tracker.pending is None
             and self._delays is not None
             and self._steps == 0
-            and now - self._sent_at > self._timeout
+            and now - self._tracker.sent_at > self._tracker.timeout_s
         ):
             # Set-points known (latched) but no reading: a lockstep simulator waits for a
             # command. Commanding the current set-points changes nothing and makes it step.

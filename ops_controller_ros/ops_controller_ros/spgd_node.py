@@ -28,6 +28,7 @@ from ops_sim_ros.ros_interface import (
 from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
+from .command_tracker import CommandTracker
 from .spgd import SpgdParams, SpgdPid
 
 _DEFAULTS = SpgdParams()
@@ -83,8 +84,6 @@ PARAMS = [
         low_exclusive=True,
     ),
 ]
-# float32 on the wire: set-points of up to ~100 fs come back to ~1e-5 fs.
-_MATCH_TOL_FS = 1e-3
 
 
 class SpgdNode(Node):
@@ -105,14 +104,10 @@ class SpgdNode(Node):
             raise ParameterError(str(exc)) from None
         self._seed = None if v["seed"] < 0 else v["seed"]
         self._min_period = 1.0 / v["rate_hz"] if v["rate_hz"] > 0 else 0.0
-        self._timeout = v["timeout_s"]
         self._log_period = v["log_period_s"]
 
         self._ctrl: SpgdPid | None = None
-        self._pending: np.ndarray | None = None  # command awaiting its reading
-        self._sent_at = 0.0
-        self._matched = False  # the latest delays message equals the pending command
-        self._last_delays: np.ndarray | None = None
+        self._tracker = CommandTracker(v["timeout_s"])
         self._next_allowed = 0.0
 
         # Delays first: when both are ready the executor takes them in creation order.
@@ -127,16 +122,13 @@ class SpgdNode(Node):
 
     # ------------------------------------------------------------------ loop
     def _send(self):
-        self._pending = self._ctrl.command()
-        self._matched = False
-        self._sent_at = time.monotonic()
-        self._pub_cmd.publish(float_array_msg(self._pending))
+        command = self._tracker.sent(self._ctrl.command(), time.monotonic())
+        self._pub_cmd.publish(float_array_msg(command))
 
     def _on_delays(self, msg: Float32MultiArray):
         delays = np.asarray(msg.data, dtype=np.float64)
         if delays.size == 0 or not np.all(np.isfinite(delays)):
             return
-        self._last_delays = delays
         if self._ctrl is None or self._ctrl.stage != delays.size:
             if self._ctrl is not None:
                 self.get_logger().warning(
@@ -146,15 +138,13 @@ class SpgdNode(Node):
             self.get_logger().info(f"simulator found: {delays.size} stages; closing the loop")
             self._send()
             return
-        self._matched = self._pending is not None and np.allclose(
-            delays, self._pending, rtol=0.0, atol=_MATCH_TOL_FS
-        )
+        self._tracker.on_setpoints(delays)
 
     def _on_power(self, msg: Float32):
-        if self._pending is None or not self._matched or not np.isfinite(msg.data):
+        if not self._tracker.matched or not np.isfinite(msg.data):
             return
         self._ctrl.observe(float(msg.data))
-        self._pending = None
+        self._tracker.answered()
         now = time.monotonic()
         if now >= self._next_allowed:
             self._next_allowed = now + self._min_period
@@ -164,11 +154,11 @@ class SpgdNode(Node):
         if self._ctrl is None:
             return
         now = time.monotonic()
-        if self._pending is None:
+        if self._tracker.pending is None:
             if now >= self._next_allowed:  # rate-limited: the next command is due
                 self._next_allowed = now + self._min_period
                 self._send()
-        elif now - self._sent_at > self._timeout:
+        elif self._tracker.overdue(now):
             self.get_logger().warning(
                 "no reading for the last command: re-sending (simulator slow or restarted?)",
                 throttle_duration_sec=5.0,
