@@ -1,0 +1,101 @@
+#!/usr/bin/env python3
+"""The SPGD-PID baseline in the three modes: where the classic controller works and where it stalls.
+
+Runs ``ros2 run ops_gym_bridge evaluate --spgd`` (the same evaluation as for learned policies:
+5 seeds x 5 episodes of 200 steps, train and test environments) for easy, medium and hard mode at
+the given stage, then draws docs/figures/spgd_baseline.png (P_N / P_max against the step, mean and
+standard deviation over seeds, on the test environment) and prints a markdown table.
+
+Usage (after `source setup.bash`): python scripts/spgd_baseline.py [--stage 5] [--out runs/spgd]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+MODES = ("easy", "medium", "hard")
+
+
+def evaluate(stage: int, mode: str, out: Path) -> dict:
+    ros2 = shutil.which("ros2")
+    cmd = (
+        [ros2, "run", "ops_gym_bridge", "evaluate"]
+        if ros2
+        else [sys.executable, "-m", "ops_gym_bridge.evaluate"]
+    )
+    cmd += [
+        "--spgd",
+        "--stage",
+        str(stage),
+        "--mode",
+        mode,
+        "--out",
+        str(out),
+        "--quiet",
+        "--no-plot",
+    ]
+    print(f"[spgd] {mode}: {' '.join(cmd[1:] if ros2 else cmd)}", flush=True)
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    return json.loads((out / "evaluation.json").read_text())
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--stage", type=int, default=5)
+    ap.add_argument("--out", default="runs/spgd", help="evaluation outputs")
+    ap.add_argument("--figure", default=str(REPO / "docs" / "figures" / "spgd_baseline.png"))
+    args = ap.parse_args()
+
+    results = {m: evaluate(args.stage, m, Path(args.out) / f"n{args.stage}_{m}") for m in MODES}
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.5, 3.6), dpi=110)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    colors = {"easy": "tab:green", "medium": "tab:orange", "hard": "tab:red"}
+    rows = []
+    for mode, res in results.items():
+        test = res["splits"]["test"]
+        mean = np.asarray(test["curve_mean"])
+        std = np.asarray(test.get("curve_std", np.zeros_like(mean)))
+        steps = np.arange(mean.size)
+        ax.plot(
+            steps, mean, color=colors[mode], label=f"{mode}: final {test['final_power_mean']:.3f}"
+        )
+        ax.fill_between(steps, mean - std, mean + std, color=colors[mode], alpha=0.2, linewidth=0)
+        for split in ("train", "test"):
+            s = res["splits"][split]
+            rows.append(
+                f"| {mode} | {split} | {s['initial_power_mean']:.3f} | "
+                f"{s['final_power_mean']:.4f} ± {s['final_power_std']:.4f} | "
+                f"{s['episode_return_mean']:.1f} ± {s['episode_return_std']:.1f} |"
+            )
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("control step (2 steps per SPGD iteration)")
+    ax.set_ylabel("P_N / P_max (test environment)")
+    ax.set_title(f"SPGD-PID, {args.stage} stages, default parameters")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="center right", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(args.figure)
+    print(f"[spgd] wrote {args.figure}")
+    print(
+        "| mode | environment | initial P_N/P_max | final P_N/P_max (mean ± std over seeds) | "
+        "episode return |"
+    )
+    print("|---|---|---|---|---|")
+    print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()
