@@ -6,7 +6,12 @@ Runs ``ros2 run ops_gym_bridge evaluate --spgd`` (the same evaluation as for lea
 the given stage, then draws docs/figures/spgd_baseline.png (P_N / P_max against the step, mean and
 standard deviation over seeds, on the test environment) and prints a markdown table.
 
+``--sweep`` instead measures, in-process, whether other SPGD settings change the picture in medium
+and hard mode, and whether SPGD can hold the optimum against the hard-mode drift when it starts
+next to it (``initial_range_cycles=0.05``): mean P_N / P_max over the last 50 of 300 iterations.
+
 Usage (after `source setup.bash`): python scripts/spgd_baseline.py [--stage 5] [--out runs/spgd]
+                                   python scripts/spgd_baseline.py --sweep [--stage 5]
 """
 
 from __future__ import annotations
@@ -47,12 +52,58 @@ def evaluate(stage: int, mode: str, out: Path) -> dict:
     return json.loads((out / "evaluation.json").read_text())
 
 
+SWEEP = (  # (gain, ki, perturbation_fs, momentum)
+    (0.05, 0.0, 0.03, 0.0),
+    (0.2, 0.0, 0.03, 0.0),
+    (1.0, 0.0, 0.03, 0.0),
+    (0.1, 0.1, 0.03, 0.0),
+    (0.1, 0.3, 0.03, 0.0),
+    (0.2, 0.2, 0.05, 0.0),
+    (0.1, 0.0, 0.03, 0.8),
+)
+
+
+def sweep(stage: int, seeds: int = 4, iterations: int = 300) -> None:
+    from ops_controller_ros.spgd import SpgdParams, SpgdPid
+    from ops_sim_ros.config import make_config
+    from ops_sim_ros.simulation import BatchedSimulation
+
+    def run(params, mode, **overrides):
+        finals = []
+        for seed in range(seeds):
+            sim = BatchedSimulation(make_config(stage, mode, "test", **overrides), 1, seed=seed)
+            sim.reset(seed=seed)
+            ctrl = SpgdPid(stage, params, sim.setpoints_fs[0], seed=seed)
+            powers = []
+            for _ in range(iterations):
+                for _ in range(2):
+                    result = sim.step_setpoints(ctrl.command()[None])
+                    ctrl.observe(result.power[0])
+                powers.append(result.power[0])
+            finals.append(np.mean(powers[-50:]))
+        return np.mean(finals)
+
+    print("| gain | ki | perturbation (fs) | momentum | medium | hard | hard, start at optimum |")
+    print("|---|---|---|---|---|---|---|")
+    for gain, ki, pert, mom in SWEEP:
+        p = SpgdParams(gain=gain, ki=ki, perturbation_fs=pert, momentum=mom)
+        print(
+            f"| {gain} | {ki} | {pert} | {mom} | {run(p, 'medium'):.3f} | {run(p, 'hard'):.3f} | "
+            f"{run(p, 'hard', initial_range_cycles=0.05):.3f} |",
+            flush=True,
+        )
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--stage", type=int, default=5)
     ap.add_argument("--out", default="runs/spgd", help="evaluation outputs")
     ap.add_argument("--figure", default=str(REPO / "docs" / "figures" / "spgd_baseline.png"))
+    ap.add_argument("--sweep", action="store_true", help="SPGD settings sweep (see above)")
     args = ap.parse_args()
+    if args.sweep:
+        sweep(args.stage)
+        return
 
     results = {m: evaluate(args.stage, m, Path(args.out) / f"n{args.stage}_{m}") for m in MODES}
 
