@@ -170,6 +170,9 @@ def main() -> int:
         f"- Growth: mean step time of the last {w} steps / first {w} steps = {growth:.3f} "
         f"(median {last['median_ms'] / first['median_ms']:.3f}); "
         f"{'no growth' if growth < 1.2 else 'GROWTH'} over {args.steps // 200} episodes.",
+        f"- Mean step time per {w}-step window, in order: "
+        + ", ".join(f"{1e3 * br_t[i : i + w].mean():.2f}" for i in range(0, len(br_t) - w + 1, w))
+        + " ms (no trend means no creep; single windows move with the machine's load).",
         f"- Resets (service call + four outputs): mean {1e3 * br_reset.mean():.2f} ms over "
         f"{br_reset.size} resets (first one, with discovery: {1e3 * br_reset[0]:.0f} ms); "
         f"in-process {1e3 * in_reset.mean():.3f} ms.",
