@@ -6,6 +6,7 @@ finished episode reports its return, its length and its final P_N / P_max.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -60,14 +61,17 @@ def _batched_vec_env(n_envs: int, stage: int, mode: str, split: str, episode_ste
         return None
     from stable_baselines3.common.vec_env import VecMonitor
 
-    venv = factory(
-        num_envs=n_envs,
-        stage=stage,
-        mode=mode,
-        split=split,
-        max_episode_steps=episode_steps,
-        seed=seed,
-    )
+    with warnings.catch_warnings():
+        # SB3 warns that the batched env has no render_mode attribute (it renders nothing).
+        warnings.filterwarnings("ignore", message="The `render_mode` attribute")
+        venv = factory(
+            num_envs=n_envs,
+            stage=stage,
+            mode=mode,
+            split=split,
+            max_episode_steps=episode_steps,
+            seed=seed,
+        )
     return VecMonitor(venv, info_keywords=("power",))
 
 
