@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import time
 
@@ -95,3 +96,41 @@ def test_ros_backend_needs_one_namespace_per_env(tmp_path):
         "--backend", "ros", "--n-envs", 2, "--stage", 3, "--out", tmp_path / "x", timeout=60
     )
     assert done.returncode == 2 and "give one --namespace per simulator" in done.stderr
+
+
+def test_ctrl_c_while_training_through_the_bridge_saves_a_model(procs, tmp_path):
+    start_sim(procs, stage=2, mode="easy", namespace="/stopper", name="sim")
+    out = tmp_path / "stopped"
+    proc = procs.start(
+        [
+            *executable("ops_gym_bridge", "train"),
+            "--algo",
+            "td3",
+            "--stage",
+            "2",
+            "--mode",
+            "easy",
+            "--backend",
+            "ros",
+            "--namespace",
+            "/stopper",
+            "--timesteps",
+            "100000",
+            "--out",
+            str(out),
+            "--hyperparams",
+            "learning_starts=100",
+            "train_freq=10",
+            "gradient_steps=10",
+            "net_arch=[32,32]",
+        ],
+        name="train",
+    )
+    proc.wait_for(r"\[train\] training started", timeout=60)
+    proc.wait_for(r"\b([2-9]\d\d|\d{4,})/100000\b", timeout=90)  # learning under way
+    proc.signal(signal.SIGINT)
+    assert proc.wait_exit(60) == 130
+    assert "Traceback" not in proc.output, proc.output
+    meta = read_metadata(out)
+    assert meta["interrupted"] is True and meta["backend"] == "ros"
+    assert load_policy(out).model.num_timesteps == meta["timesteps"] >= 200
