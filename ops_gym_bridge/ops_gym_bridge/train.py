@@ -297,7 +297,7 @@ def run(argv: list[str] | None = None) -> int:
             return _fail(f"cannot resume from {out}: {exc}")
         # The run being resumed fixes what the model is; the command line may only repeat it.
         given = set(a.split("=")[0] for a in raw if a.startswith("--"))
-        for key in ("algo", "stage", "mode", "split", "episode_steps"):
+        for key in ("algo", "stage", "mode", "split", "episode_steps", "n_envs"):
             flag = "--" + key.replace("_", "-")
             if flag in given and getattr(args, key) != previous.get(key, getattr(args, key)):
                 return _fail(
@@ -306,6 +306,8 @@ def run(argv: list[str] | None = None) -> int:
                 )
             if key in previous:
                 setattr(args, key, previous[key])
+        if "--backend" not in given and previous.get("backend"):  # may change, if asked to
+            args.backend = previous["backend"]
         params = hp.apply_overrides(
             previous.get("hyperparams") or hp.load(args.algo), args.hyperparams, args.algo
         )
