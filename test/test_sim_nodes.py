@@ -150,7 +150,9 @@ def test_parameters_change_live_and_stage_is_refused(procs, observer):
 
 
 def test_reset_service_starts_a_new_episode(procs, observer):
-    start_sim(procs, "stage:=3", "lockstep:=true", "seed:=4", "mode:=medium")
+    start_sim(
+        procs, "stage:=3", "lockstep:=true", "seed:=4", "mode:=medium", "diagnostics_period_s:=0.2"
+    )
     observer.wait_for_subscriber()
     out = run_ros2("service", "call", "/ops/reset", "std_srvs/srv/Trigger")
     assert out.returncode == 0, out.stderr
@@ -160,6 +162,13 @@ def test_reset_service_starts_a_new_episode(procs, observer):
     run_ros2("service", "call", "/ops/reset", "std_srvs/srv/Trigger")
     observer.wait_count("delays", 2)
     assert observer.last("delays") != first  # a new random initial state
+    # The status on /diagnostics counts the episodes.
+    diag = run_ros2("topic", "echo", "--once", "/diagnostics", "--timeout", "20")
+    assert diag.returncode == 0, diag.stderr
+    assert "name: ops_sim" in diag.stdout
+    for key in ("stage", "mode", "step", "episode", "power"):
+        assert f"key: {key}" in diag.stdout, diag.stdout
+    assert "value: '3'" in diag.stdout.split("key: episode", 1)[1].split("key:", 1)[0]
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
