@@ -100,3 +100,28 @@ def test_invalid_arguments():
         OpsEnv(mode="impossible")
     with pytest.raises(ValueError, match="render_mode"):
         OpsEnv(render_mode="ascii")
+
+
+def test_human_render_draws_a_figure_and_close_removes_it():
+    """render_mode="human" on matplotlib's off-screen backend (no display here): one figure is
+    drawn and updated by render(), and close() removes it."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "from ops_sim_ros import OpsEnv\n"
+        "import matplotlib.pyplot as plt\n"
+        "env = OpsEnv(stage=3, mode='medium', render_mode='human')\n"
+        "env.reset(seed=0)\n"
+        "for _ in range(3):\n"
+        "    env.step(env.action_space.sample())\n"
+        "    env.render()\n"
+        "assert len(plt.get_fignums()) == 1, plt.get_fignums()\n"
+        "env.close()\n"
+        "assert plt.get_fignums() == [], plt.get_fignums()\n"
+        "print('ok')\n"
+    )
+    env = dict(os.environ, MPLBACKEND="Agg")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
