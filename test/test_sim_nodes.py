@@ -221,3 +221,27 @@ def test_monitor_without_display_or_file_says_how_to_record(procs):
     mon = procs.ros2("run", "ops_sim_ros", "monitor", name="monitor", env=env)
     assert mon.wait_exit(30) == 2
     assert "save:=" in mon.output
+
+
+def test_monitor_live_window_draws_without_error(procs):
+    """The live-window path (no screen here: DISPLAY is set so the monitor takes that path, and
+    matplotlib draws off-screen with Agg). It must draw frames and exit cleanly."""
+    import os
+
+    env = dict(os.environ, DISPLAY=":0", MPLBACKEND="Agg")
+    start_sim(procs, "stage:=2", "mode:=easy")
+    mon = procs.ros2(
+        "run",
+        "ops_sim_ros",
+        "monitor",
+        "--ros-args",
+        "-p",
+        "frame_period_s:=0.05",
+        name="monitor",
+        env=env,
+    )
+    mon.wait_for("to a live window")
+    mon.wait_for("live window open")
+    mon.signal(signal.SIGINT)
+    assert mon.wait_exit(20) == 0, mon.output
+    assert_no_traceback(mon.output)

@@ -185,12 +185,15 @@ class MonitorNode(Node):
     def _show_live(self):
         import matplotlib.pyplot as plt
 
-        if self._figure is None:
+        first = self._figure is None
+        if first:
             plt.ion()
             self._figure = plt.figure("OPS monitor", figsize=(8, 6))
         self._draw(self._figure)
         self._figure.canvas.draw_idle()
         plt.pause(0.001)
+        if first:
+            self.get_logger().info("live window open")
 
     # ------------------------------------------------------------------ recording
     def _write_png(self):
