@@ -109,6 +109,11 @@ def run_node(make_node: Callable[[], Node], args=None) -> int:
     except NodeFatalError as exc:
         print(f"[ERROR] {exc}", file=sys.stderr, flush=True)
         code = 1
+    except Exception:
+        if rclpy.ok():
+            raise
+        # Ctrl-C / SIGTERM shut the context down while rclpy was taking a message (it then raises
+        # from inside the executor): that is the requested exit, not an error.
     finally:
         if node is not None:
             node.destroy_node()
