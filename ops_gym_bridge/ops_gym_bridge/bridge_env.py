@@ -56,6 +56,10 @@ class LockstepError(BridgeError):
     """The simulator's outputs do not follow the lockstep protocol."""
 
 
+class _AttemptTimeout(Exception):
+    """One attempt went unanswered (a lost message); the request is sent again."""
+
+
 class RosOpsEnv(gym.Env):
     """N-stage optical pulse stacking through a running simulator's topics.
 
@@ -65,7 +69,9 @@ class RosOpsEnv(gym.Env):
     (None: ``ROS_DOMAIN_ID``), ``timeout_s`` (deadline of every wait), ``max_episode_steps``.
 
     ``info``: ``power`` (P_N/P_max), ``setpoints_fs`` (set-points now applied, as echoed by the
-    simulator), ``reward``, ``step_time_s`` (wall time of the round trip).
+    simulator), ``reward``, ``step_time_s`` (wall time of the round trip), ``retries`` (requests
+    sent again so far because an answer went missing for ``retry_after_s``; in lockstep a resent
+    command makes the simulator step once more with the same set-points).
     """
 
     metadata: ClassVar[dict] = {"render_modes": []}
@@ -82,6 +88,7 @@ class RosOpsEnv(gym.Env):
         action_type: str = "increment",
         observation_options: dict[str, Any] | None = None,
         node_name: str | None = None,
+        retry_after_s: float | None = 1.0,
         **overrides: Any,
     ) -> None:
         super().__init__()
@@ -100,6 +107,12 @@ class RosOpsEnv(gym.Env):
         self.max_step_fs = self.config.max_step_fs
         self.range_fs = self.config.actuator_range_fs
         self.timeout_s = float(timeout_s)
+        # A request unanswered for this long is sent again (DDS may lose a message, e.g. a
+        # service response right after discovery); the whole wait is still bounded by timeout_s.
+        self.retry_after_s = (
+            None if not retry_after_s else min(float(retry_after_s), self.timeout_s / 2)
+        )
+        self.retries = 0  # requests sent again so far
         self.max_episode_steps = int(max_episode_steps)
         self.namespace = namespace
         self._setpoints: np.ndarray | None = None
@@ -294,9 +307,12 @@ class RosOpsEnv(gym.Env):
                 f"simulator with -p stage:={self.stage}"
             )
 
-    def _collect(self, command: np.ndarray | None, deadline: float, what: str) -> tuple:
+    def _collect(
+        self, command: np.ndarray | None, deadline: float, what: str, final: bool = True
+    ) -> tuple:
         """Wait for one answer on each output; for a command, the answer on ops/delays that
-        echoes it (older answers before it in every queue are dropped)."""
+        echoes it (older answers before it in every queue are dropped). With ``final`` False a
+        missed deadline raises :class:`_AttemptTimeout` (the caller retries)."""
         q = self._queues
         index: list[int | None] = [None]
 
@@ -319,7 +335,15 @@ class RosOpsEnv(gym.Env):
         if not self._spin_until(find, deadline):
             self._late_possible = True
             self._timed_out = True
+            if not final:
+                raise _AttemptTimeout
             got = {t: len(q[t]) for t in _TOPICS}
+            if index[0] is not None:
+                raise SimulatorTimeoutError(
+                    f"{what}: the simulator echoed the command on ops/delays but its other "
+                    f"outputs did not all arrive within {self.timeout_s:g} s ({self._where}; "
+                    f"messages received per output: {got})"
+                )
             if command is not None and q["delays"]:
                 echo = np.asarray(q["delays"][-1].data)
                 raise LockstepError(
@@ -361,7 +385,12 @@ class RosOpsEnv(gym.Env):
         power = float(power_msg.data)
         obs = build_observation(self.obs_spec, energies, power, setpoints)
         self._setpoints = setpoints
-        info = {"power": power, "setpoints_fs": setpoints.copy(), "reward": float(reward_msg.data)}
+        info = {
+            "power": power,
+            "setpoints_fs": setpoints.copy(),
+            "reward": float(reward_msg.data),
+            "retries": self.retries,
+        }
         return obs, info
 
     # ------------------------------------------------------------------ gymnasium API
@@ -395,26 +424,69 @@ class RosOpsEnv(gym.Env):
             self._drain(grace_s=0.1)
         self._prepare(strict=False)
         deadline = time.monotonic() + self.timeout_s
-        future = self._reset_client.call_async(self._trigger.Request())
-        if not self._spin_until(future.done, deadline):
-            self._late_possible = True
-            self._timed_out = True
-            self._reset_client.remove_pending_request(future)
-            raise SimulatorTimeoutError(
-                f"the simulator did not answer the reset request on {self._reset_topic} within "
-                f"{self.timeout_s:g} s ({self._where})"
-            )
-        response = future.result()
-        if response is None or not response.success:
-            raise BridgeError(
-                f"the simulator refused the reset: {getattr(response, 'message', '')}"
-            )
-        msgs = self._collect(None, deadline, "reset")
+        while True:
+            attempt_end = self._attempt_end(deadline)
+            final = attempt_end >= deadline
+            future = self._reset_client.call_async(self._trigger.Request())
+            if not self._spin_until(future.done, attempt_end):
+                self._late_possible = True
+                self._timed_out = True
+                self._reset_client.remove_pending_request(future)
+                if final:
+                    raise SimulatorTimeoutError(
+                        f"the simulator did not answer the reset request on {self._reset_topic} "
+                        f"within {self.timeout_s:g} s ({self._where})"
+                    )
+                self._retry()
+                continue
+            response = future.result()
+            if response is None or not response.success:
+                raise BridgeError(
+                    f"the simulator refused the reset: {getattr(response, 'message', '')}"
+                )
+            try:
+                msgs = self._collect(
+                    None, attempt_end if not final else deadline, "reset", final=final
+                )
+                break
+            except _AttemptTimeout:
+                self._retry()
         self._timed_out = False
         self._steps = 0
         obs, info = self._observe(msgs)
         info["step_time_s"] = time.monotonic() - t0
         return obs, info
+
+    def _attempt_end(self, deadline: float) -> float:
+        if self.retry_after_s is None:
+            return deadline
+        end = time.monotonic() + self.retry_after_s
+        return deadline if end >= deadline - 0.05 else end
+
+    def _retry(self) -> None:
+        self.retries += 1
+        self._node.get_logger().warning(
+            "no complete answer from the simulator yet: sending the request again "
+            f"({self.retries} resend(s) so far)",
+            throttle_duration_sec=5.0,
+        )
+        self._prepare(strict=False)  # waits until late answers stop, drops them
+
+    def _command_step(self, command: np.ndarray, t0: float, what: str) -> tuple:
+        """Publish ``command`` and collect its answer; a lost message means the same command is
+        sent again (in lockstep the simulator steps again with the same set-points)."""
+        self._prepare(strict=True)
+        deadline = t0 + self.timeout_s
+        msg = self._float_array()
+        msg.data = command.tolist()
+        while True:
+            attempt_end = self._attempt_end(deadline)
+            final = attempt_end >= deadline
+            self._pub.publish(msg)
+            try:
+                return self._collect(command, attempt_end, what, final=final)
+            except _AttemptTimeout:
+                self._retry()
 
     def step(self, action):
         self._check_open()
@@ -424,11 +496,7 @@ class RosOpsEnv(gym.Env):
         a = np.clip(np.asarray(action, dtype=np.float64).reshape(self.stage), -1.0, 1.0)
         command = np.clip(self._setpoints + a * self.max_step_fs, -self.range_fs, self.range_fs)
         command = command.astype(np.float32).astype(np.float64)  # what the message carries
-        self._prepare(strict=True)
-        msg = self._float_array()
-        msg.data = command.tolist()
-        self._pub.publish(msg)
-        msgs = self._collect(command, t0 + self.timeout_s, f"step {self._steps + 1}")
+        msgs = self._command_step(command, t0, f"step {self._steps + 1}")
         self._steps += 1
         obs, info = self._observe(msgs)
         info["step_time_s"] = time.monotonic() - t0
@@ -448,11 +516,7 @@ class RosOpsEnv(gym.Env):
             .astype(np.float64)
         )
         t0 = time.monotonic()
-        self._prepare(strict=True)
-        msg = self._float_array()
-        msg.data = command.tolist()
-        self._pub.publish(msg)
-        msgs = self._collect(command, t0 + self.timeout_s, "set_setpoints")
+        msgs = self._command_step(command, t0, "set_setpoints")
         obs, info = self._observe(msgs)
         info["step_time_s"] = time.monotonic() - t0
         return obs, info

@@ -233,3 +233,53 @@ def test_unsolicited_outputs_are_detected(sim3, observer_bridge):
             env.step(np.zeros(3))
     finally:
         env.close()
+
+
+def _process_tree(pid: int) -> list[int]:
+    import subprocess
+
+    out = [pid]
+    children = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout
+    for child in children.split():
+        out += _process_tree(int(child))
+    return out
+
+
+def _signal_all(pids: list[int], sig) -> None:
+    import os
+
+    for pid in pids:
+        os.kill(pid, sig)
+
+
+def test_stalled_simulator_is_asked_again_and_the_step_succeeds(procs):
+    """An answer that does not come within retry_after_s (here: the simulator is stopped for a
+    second) makes the bridge send the same command again; the step returns its own answer and
+    the protocol stays aligned afterwards."""
+    sim = start_sim(procs, stage=3, mode="easy", namespace="/stall", name="stall")
+    env = RosOpsEnv(stage=3, mode="easy", namespace="/stall", timeout_s=6.0, retry_after_s=0.5)
+    try:
+        _, info = env.reset()
+        setpoints = info["setpoints_fs"]
+        # Stop the simulator process itself: `ros2 run` may run it as a child (in a process
+        # group of its own), and the wrapper must not be stopped.
+        pids = _process_tree(sim.popen.pid)[1:] or [sim.popen.pid]
+        _signal_all(pids, signal.SIGSTOP)
+        resume = threading.Timer(1.2, _signal_all, args=(pids, signal.SIGCONT))
+        resume.start()
+        try:
+            _, _, _, _, info = env.step(np.full(3, 0.5))
+        finally:
+            resume.join()
+        assert env.retries >= 1 and info["retries"] == env.retries
+        expected = setpoints + 0.5 * env.max_step_fs
+        np.testing.assert_allclose(info["setpoints_fs"], expected, atol=1e-4)
+        for k in range(1, 11):
+            _, _, _, _, info = env.step(np.full(3, -1.0))
+            np.testing.assert_allclose(
+                info["setpoints_fs"], expected - k * env.max_step_fs, atol=1e-4
+            )
+        env.reset()
+        env.step(np.zeros(3))
+    finally:
+        env.close()
