@@ -128,6 +128,22 @@ def test_run_forwards_sigterm_and_returns_child_code(env, procs):
     assert not pid_alive(child)
 
 
+def test_run_survives_stop_and_continue_then_forwards_ctrl_c(env, procs):
+    """SIGSTOP / SIGCONT (a shell's Ctrl-Z and fg, or a debugger) to `ros2` or to its child are
+    not forwarded and do not break the wrapper; a later Ctrl-C still reaches the child once."""
+    proc = procs.start([*ros2_command(), "run", DEMO_PKG, "sleeper"], name="sleeper", env=env)
+    child = _child_pid(proc)
+    for pid in (child, proc.popen.pid):
+        os.kill(pid, signal.SIGSTOP)
+        os.kill(pid, signal.SIGCONT)
+    assert proc.popen.poll() is None and pid_alive(child)
+    proc.signal(signal.SIGINT)
+    assert proc.wait_exit(20) == 0
+    assert "child got SIGINT x1 SIGTERM x0" in proc.output
+    assert_no_traceback(proc.output)
+    assert not pid_alive(child)
+
+
 def run_until(*args, env, condition, timeout=30.0):
     """Run `ros2 ARGS` again until ``condition(result)``: a fresh process discovers the DDS
     graph asynchronously (the real ros2cli relies on its daemon for that)."""

@@ -180,7 +180,9 @@ def run_executable(cmd):
                 if returncode is not None:
                     return returncode
                 info = signal.sigtimedwait(waited, 0.5)
-                if info is None or info.si_signo == signal.SIGCHLD:
+                # Only the signals we wait for to forward; SIGCHLD (also when the child is
+                # stopped or continued) just means "poll again".
+                if info is None or info.si_signo not in FORWARDED:
                     continue
                 with contextlib.suppress(ProcessLookupError):
                     process.send_signal(info.si_signo)
