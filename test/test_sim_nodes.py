@@ -245,3 +245,44 @@ def test_monitor_live_window_draws_without_error(procs):
     mon.signal(signal.SIGINT)
     assert mon.wait_exit(20) == 0, mon.output
     assert_no_traceback(mon.output)
+
+
+def _child_rss_kib(wrapper_pid: int) -> tuple[int, int]:
+    """(pid, resident KiB) of the node started by `ros2 run` (the wrapper's child process)."""
+    from pathlib import Path
+
+    children = Path(f"/proc/{wrapper_pid}/task/{wrapper_pid}/children").read_text().split()
+    pid = int(children[0])
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return pid, int(line.split()[1])
+    raise AssertionError("no VmRSS")
+
+
+def test_a_flood_of_commands_neither_grows_memory_nor_stalls_publishing(procs, observer):
+    import time
+
+    sim = start_sim(procs, "stage:=3", "rate_hz:=50.0", "seed:=6")
+    observer.wait_for_subscriber()
+    observer.wait_count("power", 20)
+    _, rss_before = _child_rss_kib(sim.popen.pid)
+    n0, t0 = observer.count("power"), time.monotonic()
+    sent = 0
+    while time.monotonic() - t0 < 4.0:  # far faster than 50 Hz: thousands of commands
+        observer.send([0.1 * (sent % 7), -0.2, 0.3])
+        sent += 1
+    observer.wait_until(lambda: observer.count("power") >= n0 + 150, timeout=10)
+    elapsed = time.monotonic() - t0
+    rate = (observer.count("power") - n0) / elapsed
+    _, rss_after = _child_rss_kib(sim.popen.pid)
+    assert sent > 2000
+    # Publishing kept its 50 Hz pace through the flood: neither stalled nor driven by commands.
+    assert 35.0 < rate < 70.0, rate
+    assert rss_after - rss_before < 20_000, (rss_before, rss_after)  # KiB: no queue piling up
+    # The latest command won: the set-points are the last one sent.
+    last = [0.1 * ((sent - 1) % 7), -0.2, 0.3]
+    observer.wait_until(
+        lambda: np.allclose(observer.last("delays"), last, atol=1e-5),
+        timeout=5,
+        what="the last command applied",
+    )
