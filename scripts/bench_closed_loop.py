@@ -36,7 +36,6 @@ SECTION = "## Closed loop over DDS"
 
 def echo_main():
     """Republish every ops/delay_cmd on ops/delays, nothing else (the raw transport)."""
-    import rclpy
     from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DELAY_CMD, TOPIC_DELAYS, run_node
     from rclpy.node import Node
     from std_msgs.msg import Float32MultiArray
@@ -47,7 +46,6 @@ def echo_main():
             pub = self.create_publisher(Float32MultiArray, TOPIC_DELAYS, QOS_RELIABLE)
             self.create_subscription(Float32MultiArray, TOPIC_DELAY_CMD, pub.publish, QOS_RELIABLE)
 
-    del rclpy
     raise SystemExit(run_node(Echo))
 
 
@@ -82,13 +80,13 @@ class Probe:
                 raise TimeoutError("no answer")
             self.rclpy.spin_once(self.node, timeout_sec=0.01)
 
-    def wait_for_peer(self, timeout=30.0):
+    def wait_for_peer(self, stage, timeout=30.0):
         self.spin_until(lambda: self.pub.get_subscription_count() > 0, timeout)
         # Discovery of our subscriptions by the peer is not visible here: ping until answered.
         deadline = time.perf_counter() + timeout
         while True:
             n = self.got["delays"]
-            self.pub.publish(self.Float32MultiArray(data=[0.0] * self.stage))
+            self.pub.publish(self.Float32MultiArray(data=[0.0] * stage))
             try:
                 self.spin_until(lambda n=n: self.got["delays"] > n, 0.5)
                 return
@@ -97,8 +95,7 @@ class Probe:
                     raise
 
     def round_trips(self, topic, samples, stage, rng):
-        self.stage = stage
-        self.wait_for_peer()
+        self.wait_for_peer(stage)
         times = []
         for _ in range(samples):
             n = self.got[topic]

@@ -35,27 +35,14 @@ from ops_sim_ros.ros_interface import (
 from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
+from . import controller_params
 from .command_tracker import CommandTracker
 from .policy_io import PolicyLoadError, check_stage, load_policy
 
 PARAMS = [
     ParamSpec("model", "", "trained model: the training output DIR or DIR/model.zip"),
-    ParamSpec(
-        "timeout_s",
-        1.0,
-        "re-send a command unanswered for this long",
-        low=0.0,
-        high=3600.0,
-        low_exclusive=True,
-    ),
-    ParamSpec(
-        "log_period_s",
-        1.0,
-        "period of the progress log line",
-        low=0.0,
-        high=3600.0,
-        low_exclusive=True,
-    ),
+    controller_params.TIMEOUT,
+    controller_params.LOG_PERIOD,
 ]
 
 

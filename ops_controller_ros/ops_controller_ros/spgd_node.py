@@ -28,6 +28,7 @@ from ops_sim_ros.ros_interface import (
 from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
+from . import controller_params
 from .command_tracker import CommandTracker
 from .spgd import SpgdParams, SpgdPid
 
@@ -66,23 +67,9 @@ PARAMS = [
     ParamSpec(
         "rate_hz", 0.0, "largest command rate; 0: as fast as readings arrive", low=0.0, high=1e6
     ),
-    ParamSpec(
-        "timeout_s",
-        1.0,
-        "re-send a command unanswered for this long",
-        low=0.0,
-        high=3600.0,
-        low_exclusive=True,
-    ),
+    controller_params.TIMEOUT,
     ParamSpec("seed", -1, "random seed of the perturbations; -1 draws one", low=-1, high=2**31 - 1),
-    ParamSpec(
-        "log_period_s",
-        1.0,
-        "period of the progress log line",
-        low=0.0,
-        high=3600.0,
-        low_exclusive=True,
-    ),
+    controller_params.LOG_PERIOD,
 ]
 
 

@@ -62,11 +62,17 @@ class ParamSpec:
         return d
 
 
+def coerce(spec: ParamSpec, value):
+    """``value`` as the parameter's type where ROS hands an integer for a float parameter."""
+    if isinstance(spec.default, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
 def check_value(spec: ParamSpec, value) -> str | None:
     """Why ``value`` is not allowed for ``spec``, or None."""
     want = type(spec.default)
-    if want is float and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
+    value = coerce(spec, value)
     if not isinstance(value, want) or (want is not bool and isinstance(value, bool)):
         return f"{spec.name} must be {spec.allowed} (got {value!r})"
     if spec.choices and value not in spec.choices:
@@ -93,9 +99,7 @@ def declare_all(node: Node, specs: list[ParamSpec]) -> dict:
             )
         except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
             raise ParameterError(f"{spec.name} must be {spec.allowed} ({exc})") from None
-        value = param.value
-        if isinstance(spec.default, float) and isinstance(value, int):
-            value = float(value)
+        value = coerce(spec, param.value)
         problem = check_value(spec, value)
         if problem:
             raise ParameterError(problem)

@@ -19,7 +19,7 @@ from std_msgs.msg import Float32, Float32MultiArray
 from std_srvs.srv import Trigger
 
 from .config import MAX_STAGE, MODES, SPLITS, make_config
-from .node_params import ParamSpec, check_value, declare_all
+from .node_params import ParamSpec, check_value, coerce, declare_all
 from .ros_interface import (
     QOS_RELIABLE,
     QOS_STATE,
@@ -110,7 +110,6 @@ class SimNode(Node):
         self._config = config_from_params(self._values)
         seed = None if self._values["seed"] < 0 else self._values["seed"]
         self._sim = BatchedSimulation(self._config, num_envs=1, seed=seed)
-        self._stage = self._config.stage
 
         self._pub_intensity = self.create_publisher(
             Float32MultiArray, TOPIC_INTENSITY, QOS_RELIABLE
@@ -131,7 +130,7 @@ class SimNode(Node):
         self._restart_timers()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
-            f"stage={self._stage} mode={self._config.mode} split={self._config.split} "
+            f"stage={self._config.stage} mode={self._config.mode} split={self._config.split} "
             + ("lockstep" if self._values["lockstep"] else f"rate={self._values['rate_hz']} Hz")
         )
         self._publish()
@@ -172,7 +171,7 @@ class SimNode(Node):
         status.values = [
             KeyValue(key=k, value=str(v))
             for k, v in (
-                ("stage", self._stage),
+                ("stage", self._config.stage),
                 ("mode", self._config.mode),
                 ("split", self._config.split),
                 ("lockstep", self._values["lockstep"]),
@@ -188,7 +187,7 @@ class SimNode(Node):
     # ------------------------------------------------------------------ inputs
     def _on_command(self, msg: Float32MultiArray):
         values = list(msg.data)
-        problem = check_command(values, self._stage)
+        problem = check_command(values, self._config.stage)
         if problem:
             self.get_logger().warning(
                 f"rejected delay command: {problem}; set-points unchanged",
@@ -228,11 +227,7 @@ class SimNode(Node):
                     successful=False,
                     reason=f"{p.name} cannot change while the simulator runs; restart the node",
                 )
-            value = (
-                float(p.value)
-                if isinstance(spec.default, float) and isinstance(p.value, int)
-                else p.value
-            )
+            value = coerce(spec, p.value)
             problem = check_value(spec, value)
             if problem:
                 return SetParametersResult(successful=False, reason=problem)
