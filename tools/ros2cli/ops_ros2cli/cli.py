@@ -1,3 +1,4 @@
+# PYTHON_ARGCOMPLETE_OK
 """``ros2`` entry point: argument parsing, dispatch and signal handling."""
 
 import argparse
@@ -10,8 +11,11 @@ PROGRAM = "ros2"
 
 # The commands this subset provides, with the real tool's one-line descriptions.
 COMMANDS = {
+    "bag": "Various rosbag related sub-commands",
+    "interface": "Show information about ROS interfaces",
     "node": "Various node related sub-commands",
     "param": "Various param related sub-commands",
+    "pkg": "Various package related sub-commands",
     "run": "Run a package specific executable",
     "service": "Various service related sub-commands",
     "topic": "Various topic related sub-commands",
@@ -20,33 +24,33 @@ COMMANDS = {
 # Commands of a full ROS 2 Jazzy install that this subset does not provide.
 MISSING_COMMANDS = (
     "action",
-    "bag",
     "component",
     "control",
     "daemon",
     "doctor",
     "extension_points",
     "extensions",
-    "interface",
     "launch",
     "lifecycle",
     "multicast",
-    "pkg",
     "security",
     "wtf",
 )
 
 # Verbs of the provided commands that only the full ros2cli has.
 MISSING_VERBS = {
-    "node": ("info",),
-    "param": ("delete", "describe", "dump", "load"),
+    "bag": ("convert", "list", "reindex"),
+    "interface": ("proto",),
+    "param": ("delete", "describe"),
+    "pkg": ("create", "xml"),
     "service": ("echo", "find", "info"),
-    "topic": ("bw", "delay", "find", "info"),
+    "topic": ("bw", "delay", "find"),
 }
 
 PROVIDED_SUMMARY = (
-    "run, topic (list, echo, hz, pub, type), node (list), service (call, list, type), "
-    "param (list, get, set)"
+    "run, topic (list, echo, hz, pub, type, info), node (list, info), service (call, list, "
+    "type), param (list, get, set, dump, load), bag (record, info, play), interface (show, "
+    "list, packages, package), pkg (list, executables, prefix)"
 )
 
 EPILOG = (
@@ -104,7 +108,15 @@ def _first_positional(argv):
 
 
 def _build_parser():
-    from ops_ros2cli import cmd_node, cmd_param, cmd_service, cmd_topic
+    from ops_ros2cli import (
+        cmd_bag,
+        cmd_interface,
+        cmd_node,
+        cmd_param,
+        cmd_pkg,
+        cmd_service,
+        cmd_topic,
+    )
 
     parser = argparse.ArgumentParser(
         prog=PROGRAM,
@@ -126,10 +138,14 @@ def _build_parser():
         metavar=f"Call `{PROGRAM} <command> -h` for more detailed usage.",
     )
     # 'run' is parsed by ops_ros2cli.run itself; this entry is for the help text only
-    subparsers.add_parser("run", help=COMMANDS["run"])
+    run_parser = subparsers.add_parser("run", help=COMMANDS["run"])
+    _add_run_completion(run_parser)
     for name, module in (
+        ("bag", cmd_bag),
+        ("interface", cmd_interface),
         ("node", cmd_node),
         ("param", cmd_param),
+        ("pkg", cmd_pkg),
         ("service", cmd_service),
         ("topic", cmd_topic),
     ):
@@ -149,8 +165,40 @@ def _build_parser():
     return parser
 
 
+def _add_run_completion(parser):
+    """Positionals of ``run`` for tab completion only (ops_ros2cli.run parses the real call)."""
+
+    def packages(**kwargs):
+        from ops_ros2cli.cmd_pkg import package_names
+
+        return package_names()
+
+    def executables(parsed_args, **kwargs):
+        from ops_ros2cli import run
+
+        try:
+            return [os.path.basename(p) for p in run.get_executable_paths(parsed_args.package)]
+        except run.PackageNotFound:
+            return []
+
+    parser.add_argument("package", nargs="?").completer = packages
+    parser.add_argument("executable", nargs="?").completer = executables
+
+
+def _autocomplete():
+    """Tab completion (argcomplete): answers and exits when the shell asks, else returns."""
+    if "_ARGCOMPLETE" not in os.environ:
+        return
+    try:
+        import argcomplete
+    except ImportError:
+        return
+    argcomplete.autocomplete(_build_parser())
+
+
 def main(argv=None):
     if argv is None:
+        _autocomplete()
         argv = sys.argv[1:]
     argv = list(argv)
 

@@ -68,6 +68,39 @@ def add_verbs(verbs):
     p.add_argument("parameter_name", help="Name of the parameter")
     p.add_argument("value", help="Value of the parameter")
     p.set_defaults(_main=main_set)
+    add_dump_load_verbs(verbs)
+
+
+def add_dump_load_verbs(verbs):
+    p = verbs.add_parser(
+        "dump",
+        help="Show all of the parameters of a node in a YAML file format",
+        description="Show all of the parameters of a node in a YAML file format",
+    )
+    graph.add_spin_time_argument(p)
+    p.add_argument("node_name", help="Name of the ROS node")
+    p.add_argument(
+        "--include-hidden-nodes", action="store_true", help="Consider hidden nodes as well"
+    )
+    p.set_defaults(_main=main_dump)
+
+    p = verbs.add_parser(
+        "load",
+        help="Load parameter file for a node",
+        description="Load parameter file for a node",
+    )
+    graph.add_spin_time_argument(p)
+    p.add_argument("node_name", help="Name of the ROS node")
+    p.add_argument("parameter_file", help="Parameter file")
+    p.add_argument(
+        "--no-use-wildcard",
+        action="store_true",
+        help="Do not load parameters in the '/**' namespace into the node",
+    )
+    p.add_argument(
+        "--include-hidden-nodes", action="store_true", help="Consider hidden nodes as well"
+    )
+    p.set_defaults(_main=main_load)
 
 
 def _wait_for_node(cli, node_name, args):
@@ -214,4 +247,135 @@ def main_set(args):
     if result.reason:
         msg += ": " + result.reason
     print(msg, file=sys.stderr)
+    return 0
+
+
+# dump / load ---------------------------------------------------------------------------------
+
+
+def _python_value(pvalue):
+    from rcl_interfaces.msg import ParameterType
+
+    kinds = {
+        ParameterType.PARAMETER_BOOL: lambda v: bool(v.bool_value),
+        ParameterType.PARAMETER_INTEGER: lambda v: int(v.integer_value),
+        ParameterType.PARAMETER_DOUBLE: lambda v: float(v.double_value),
+        ParameterType.PARAMETER_STRING: lambda v: str(v.string_value),
+        ParameterType.PARAMETER_BYTE_ARRAY: lambda v: [bytes(b)[0] for b in v.byte_array_value],
+        ParameterType.PARAMETER_BOOL_ARRAY: lambda v: [bool(b) for b in v.bool_array_value],
+        ParameterType.PARAMETER_INTEGER_ARRAY: lambda v: [int(b) for b in v.integer_array_value],
+        ParameterType.PARAMETER_DOUBLE_ARRAY: lambda v: [float(b) for b in v.double_array_value],
+        ParameterType.PARAMETER_STRING_ARRAY: lambda v: [str(b) for b in v.string_array_value],
+    }
+    fn = kinds.get(pvalue.type)
+    return None if fn is None else fn(pvalue)
+
+
+def main_dump(args):
+    import yaml
+    from rcl_interfaces.srv import GetParameters, ListParameters
+
+    node_name = graph.absolute_node_name(args.node_name)
+    with graph.CliNode(args) as cli:
+        if not _wait_for_node(cli, node_name, args):
+            return "Node not found"
+        listed = _call(cli, ListParameters, node_name, "list_parameters", ListParameters.Request())
+        names = sorted(listed.result.names)
+        request = GetParameters.Request()
+        request.names = names
+        got = _call(cli, GetParameters, node_name, "get_parameters", request)
+    params = {}
+    for name, pvalue in zip(names, got.values, strict=False):
+        value = _python_value(pvalue)
+        if value is None:
+            continue
+        # dotted names nest, as in the real tool
+        target = params
+        parts = name.split(".")
+        for part in parts[:-1]:
+            target = target.setdefault(part, {})
+        target[parts[-1]] = value
+    print(yaml.dump({node_name: {"ros__parameters": params}}, default_flow_style=False), end="")
+    return 0
+
+
+def _flatten(prefix, value, out):
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _flatten(f"{prefix}.{k}" if prefix else str(k), v, out)
+    else:
+        out[prefix] = value
+
+
+def _to_parameter_value(value):
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+
+    pv = ParameterValue()
+    if isinstance(value, bool):
+        pv.type, pv.bool_value = ParameterType.PARAMETER_BOOL, value
+    elif isinstance(value, int):
+        pv.type, pv.integer_value = ParameterType.PARAMETER_INTEGER, value
+    elif isinstance(value, float):
+        pv.type, pv.double_value = ParameterType.PARAMETER_DOUBLE, value
+    elif isinstance(value, str):
+        pv.type, pv.string_value = ParameterType.PARAMETER_STRING, value
+    elif isinstance(value, list) and value and all(isinstance(v, bool) for v in value):
+        pv.type, pv.bool_array_value = ParameterType.PARAMETER_BOOL_ARRAY, value
+    elif isinstance(value, list) and value and all(isinstance(v, int) for v in value):
+        pv.type, pv.integer_array_value = ParameterType.PARAMETER_INTEGER_ARRAY, value
+    elif isinstance(value, list) and value and all(isinstance(v, (int, float)) for v in value):
+        pv.type = ParameterType.PARAMETER_DOUBLE_ARRAY
+        pv.double_array_value = [float(v) for v in value]
+    elif isinstance(value, list) and all(isinstance(v, str) for v in value):
+        pv.type, pv.string_array_value = ParameterType.PARAMETER_STRING_ARRAY, value
+    else:
+        raise RuntimeError(f"Unsupported parameter value {value!r}")
+    return pv
+
+
+def main_load(args):
+    import yaml
+    from rcl_interfaces.msg import Parameter
+    from rcl_interfaces.srv import SetParameters
+
+    node_name = graph.absolute_node_name(args.node_name)
+    try:
+        with open(args.parameter_file) as f:
+            document = yaml.safe_load(f)
+    except OSError as exc:
+        raise RuntimeError(f"cannot read '{args.parameter_file}': {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        detail = " ".join(str(exc).split())
+        raise RuntimeError(f"'{args.parameter_file}' is not valid YAML: {detail}") from None
+    if not isinstance(document, dict):
+        raise RuntimeError(f"'{args.parameter_file}' is not a parameter file (no node entries)")
+    values = {}
+    keys = ([] if args.no_use_wildcard else ["/**"]) + [node_name, node_name.lstrip("/")]
+    matched = False
+    for key in keys:
+        entry = document.get(key)
+        if isinstance(entry, dict) and isinstance(entry.get("ros__parameters"), dict):
+            matched = True
+            _flatten("", entry["ros__parameters"], values)
+    if not matched:
+        raise RuntimeError(f"Param file does not contain parameters for {node_name}")
+    with graph.CliNode(args) as cli:
+        if not _wait_for_node(cli, node_name, args):
+            return "Node not found"
+        request = SetParameters.Request()
+        request.parameters = [
+            Parameter(name=name, value=_to_parameter_value(value)) for name, value in values.items()
+        ]
+        response = _call(cli, SetParameters, node_name, "set_parameters", request)
+    for name, result in zip(values, response.results, strict=False):
+        if result.successful:
+            msg = f"Set parameter {name} successful"
+            if result.reason:
+                msg += ": " + result.reason
+            print(msg)
+        else:
+            msg = f"Set parameter {name} failed"
+            if result.reason:
+                msg += ": " + result.reason
+            print(msg, file=sys.stderr)
     return 0

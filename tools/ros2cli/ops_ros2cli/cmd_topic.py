@@ -2,6 +2,7 @@
 
 import argparse
 import math
+import sys
 import time
 
 import yaml
@@ -200,6 +201,22 @@ def add_verbs(verbs):
     add_qos_arguments(p, "publish", "default")
     p.set_defaults(_main=main_pub)
 
+    p = verbs.add_parser(
+        "info",
+        help="Print information about a topic",
+        description="Print information about a topic",
+    )
+    graph.add_spin_time_argument(p)
+    p.add_argument("topic_name", help="Name of the ROS topic to get info (e.g. '/chatter')")
+    p.add_argument(
+        "--verbose",
+        "-v",
+        action="store_true",
+        help="Prints detailed information like the node name, node namespace, topic type, "
+        "topic type hash, GUID, and QoS Profile of the publishers and subscribers to this topic",
+    )
+    p.set_defaults(_main=main_info)
+
     p = verbs.add_parser("type", help="Print a topic's type", description="Print a topic's type")
     graph.add_spin_time_argument(p)
     p.add_argument("topic_name", help="Name of the ROS topic to get type (e.g. '/chatter')")
@@ -244,6 +261,45 @@ def main_type(args):
         return 1
     for t in found:
         print(t)
+    return 0
+
+
+def main_info(args):
+    with graph.CliNode(args) as cli:
+        name = graph.expand_topic(cli.node, args.topic_name)
+        own = (cli.node.get_name(), cli.node.get_namespace())
+
+        def endpoints():
+            types = dict(cli.node.get_topic_names_and_types()).get(name)
+            if not types:
+                return None
+            pubs = cli.node.get_publishers_info_by_topic(name)
+            subs = [
+                s
+                for s in cli.node.get_subscriptions_info_by_topic(name)
+                if (s.node_name, s.node_namespace) != own
+            ]
+            return types, pubs, subs
+
+        found = cli.wait_for(endpoints, graph.discovery_timeout(args))
+        if found:
+            # a moment more for the other endpoints of a topic just discovered
+            cli.spin_for(0.3)
+            found = endpoints() or found
+    if not found:
+        print(f"Unknown topic '{args.topic_name}'", file=sys.stderr)
+        return 1
+    types, pubs, subs = found
+    type_str = types[0] if len(types) == 1 else str(types)
+    print(f"Type: {type_str}", end="\n" if not args.verbose else "\n\n")
+    print(f"Publisher count: {len(pubs)}", end="\n" if not args.verbose else "\n\n")
+    if args.verbose:
+        for info in pubs:
+            print(info, end="\n\n")
+    print(f"Subscription count: {len(subs)}", end="\n" if not args.verbose else "\n\n")
+    if args.verbose:
+        for info in subs:
+            print(info, end="\n\n")
     return 0
 
 
