@@ -15,5 +15,9 @@ else
   esac
   # shellcheck disable=SC1091
   source "$_ops_root/install/setup.bash"
+  # Tab completion of `ros2` (argcomplete) in interactive bash.
+  if [ -n "${BASH_VERSION:-}" ] && [ -x "$VIRTUAL_ENV/bin/register-python-argcomplete" ]; then
+    eval "$("$VIRTUAL_ENV/bin/register-python-argcomplete" ros2)"
+  fi
 fi
 unset _ops_root
