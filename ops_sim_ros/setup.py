@@ -20,6 +20,7 @@ setup(
         "console_scripts": [
             "sim = ops_sim_ros.sim_node:main",
             "monitor = ops_sim_ros.monitor_node:main",
+            "foxglove = ops_sim_ros.foxglove_node:main",
         ],
     },
 )

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from .envs import EPISODE_STEPS
+from .recording import new_bag_path
 
 MODES = ("easy", "medium", "hard")
 SPLITS = ("train", "test")
@@ -61,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--steps", type=int, default=EPISODE_STEPS, help="steps per episode")
     p.add_argument("--out", help="output directory (default: MODEL/eval, or ./eval_spgd)")
+    p.add_argument(
+        "--record", metavar="DIR", type=new_bag_path, help="also record a bag of episodes"
+    )
     p.add_argument(
         "--spgd-param",
         nargs="+",
@@ -323,6 +327,10 @@ def run(argv: list[str] | None = None) -> int:
     else:
         out = Path("eval_spgd")
     written = write_outputs(results, out, plot=not args.no_plot)
+    if args.record:
+        from .recording import record_episodes
+
+        written.append(record_episodes(args, results["stage"], results["mode"], Path(args.record)))
     print(format_table(results))
     print(f"[evaluate] wrote {', '.join(str(p) for p in written)}", flush=True)
     return 0
