@@ -66,7 +66,7 @@ class FoxgloveNode(Node):
                 "-p port:=N"
             ) from None
         self._channels: dict[str, object] = {}
-        self._subscriptions = []
+        self._topic_subscriptions = []
         self.get_logger().info(
             f"Foxglove WebSocket server on ws://{v['host']}:{self._server.port} serving "
             f"{self._prefix}*"
@@ -99,7 +99,7 @@ class FoxgloveNode(Node):
                 ),
             )
             self._channels[name] = channel
-            self._subscriptions.append(
+            self._topic_subscriptions.append(
                 self.create_subscription(
                     msg_class,
                     name,
