@@ -8,7 +8,7 @@ standard deviation over seeds, on the test environment) and prints a markdown ta
 
 ``--sweep`` instead measures, in-process, whether other SPGD settings change the picture in medium
 and hard mode, and whether SPGD can hold the optimum against the hard-mode drift when it starts
-next to it (``initial_range_cycles=0.05``): mean P_N / P_max over the last 50 of 300 iterations.
+next to it (``initial_sigma_cycles=0.025, initial_offset_sigmas=0``): mean P_N / P_max over the last 50 of 300 iterations.
 
 Usage (after `source setup.bash`): python scripts/spgd_baseline.py [--stage 5] [--out runs/spgd]
                                    python scripts/spgd_baseline.py --sweep [--stage 5]
@@ -89,7 +89,7 @@ def sweep(stage: int, seeds: int = 4, iterations: int = 300) -> None:
         p = SpgdParams(gain=gain, ki=ki, perturbation_fs=pert, momentum=mom)
         print(
             f"| {gain} | {ki} | {pert} | {mom} | {run(p, 'medium'):.3f} | {run(p, 'hard'):.3f} | "
-            f"{run(p, 'hard', initial_range_cycles=0.05):.3f} |",
+            f"{run(p, 'hard', initial_sigma_cycles=0.025, initial_offset_sigmas=0.0):.3f} |",
             flush=True,
         )
 

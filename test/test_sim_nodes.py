@@ -120,7 +120,8 @@ def test_bad_commands_are_rejected_and_the_state_kept(procs, observer):
     "param, words",
     [
         ("stage:=0", ["stage", "[1, 10]"]),
-        ("mode:=extreme", ["mode", "easy, medium, hard", "extreme"]),
+        ("mode:=brutal", ["mode", "easy, medium, hard, extreme", "brutal"]),
+        ("detector:=camera", ["detector", "polarizer, total", "camera"]),
         ("rate_hz:=0.0", ["rate_hz", "(0.0, 100000.0]"]),
         ("split:=validation", ["split", "train, test"]),
         ("stage:=three", ["stage"]),
@@ -141,12 +142,14 @@ def test_parameters_change_live_and_stage_is_refused(procs, observer):
     observer.wait_count("delays", 1)
     refused = run_ros2("param", "set", "/ops_sim", "stage", "4")
     assert "stage cannot change while the simulator runs" in refused.stdout + refused.stderr
-    bad = run_ros2("param", "set", "/ops_sim", "mode", "extreme")
-    assert "mode must be one of easy, medium, hard" in bad.stdout + bad.stderr
+    bad = run_ros2("param", "set", "/ops_sim", "mode", "brutal")
+    assert "mode must be one of easy, medium, hard, extreme" in bad.stdout + bad.stderr
     ok = run_ros2("param", "set", "/ops_sim", "mode", "hard")
     assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
     got = run_ros2("param", "get", "/ops_sim", "mode")
     assert "hard" in got.stdout
+    ok = run_ros2("param", "set", "/ops_sim", "detector", "total")
+    assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
 
 
 def test_reset_service_starts_a_new_episode(procs, observer):
@@ -158,10 +161,12 @@ def test_reset_service_starts_a_new_episode(procs, observer):
     assert out.returncode == 0, out.stderr
     assert "success=True" in out.stdout and "episode 2" in out.stdout
     observer.wait_count("delays", 1)
-    first = observer.last("delays")
+    first_power = observer.last("power")
+    assert observer.last("delays") == [0.0, 0.0, 0.0]  # an episode starts at zero set-points
     run_ros2("service", "call", "/ops/reset", "std_srvs/srv/Trigger")
-    observer.wait_count("delays", 2)
-    assert observer.last("delays") != first  # a new random initial state
+    observer.wait_count("power", 2)
+    assert observer.last("delays") == [0.0, 0.0, 0.0]
+    assert observer.last("power") != first_power  # new hidden delay errors: a new initial state
     # The status on /diagnostics counts the episodes.
     diag = run_ros2("topic", "echo", "--once", "/diagnostics", "--timeout", "20")
     assert diag.returncode == 0, diag.stderr

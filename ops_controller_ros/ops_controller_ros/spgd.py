@@ -77,8 +77,11 @@ class SpgdPid:
         sign = 1.0 if self._phase == 0 else -1.0
         return self.setpoints_fs + sign * self.params.perturbation_fs * self._signs
 
-    def observe(self, power: float) -> None:
-        """The power measured with the last ``command()``; every second reading updates u."""
+    def observe(self, power: float, pulse_energies=None) -> None:
+        """The power measured with the last ``command()``; every second reading updates u.
+
+        SPGD uses the power only; ``pulse_energies`` is accepted for the common interface of
+        :mod:`ops_controller_ros.controllers`."""
         if self._phase == 0:
             self._j_plus = float(power)
             self._phase = 1

@@ -17,34 +17,45 @@ from typing import Any
 
 SPEED_OF_LIGHT_NM_PER_FS = 299.792458  # c in nm/fs
 
-MODES = ("easy", "medium", "hard")
+MODES = ("easy", "medium", "hard", "extreme")
 SPLITS = ("train", "test")
+DETECTORS = ("polarizer", "total")
 MAX_STAGE = 10
 
-# Drift defaults per (mode, split): (slope_min, slope_max) in cycles/step, (knot_min, knot_max) in
-# steps. Only hard mode drifts; its test split drifts faster and changes direction more often, so a
-# policy trained on "train" meets a shifted noise distribution on "test" (paper section 2.2).
+# Each mode's initial delay errors and drift, after the authors' code (docs/physics.md, "Modes").
+# Initial error per stage: normal(0, initial_sigma_cycles) clipped at +- initial_clip_sigmas sigma,
+# plus (hard, extreme) one per-episode offset shared by all stages, uniform in
+# +- initial_offset_sigmas sigma. Drift: the mean mu of each step's delay increment, in cycles per
+# step; |mu| uniform in [drift_slope_min_cycles, drift_slope_max_cycles] with a random sign.
+_MODE_DEFAULTS = {
+    "easy": dict(initial_sigma_cycles=0.16, initial_offset_sigmas=0.0),
+    "medium": dict(initial_sigma_cycles=0.26, initial_offset_sigmas=0.0),
+    "hard": dict(initial_sigma_cycles=0.30, initial_offset_sigmas=1.0),
+    "extreme": dict(initial_sigma_cycles=0.30, initial_offset_sigmas=1.0),
+}
+# Drift per (mode, split). hard: the paper's slow drift, one mu per episode shared by all stages
+# and constant within the episode (drift_knot_*_steps = 0); its test split draws |mu| from a range
+# shifted upwards (mean |mu| twice the training one, a third of the test episodes drift faster
+# than any training episode: the train/test shift of section 2.2). extreme (beyond the paper):
+# a slope per stage, redrawn every drift_knot_min..max steps, 10-15x the paper's drift.
 _DRIFT_DEFAULTS = {
-    ("hard", "train"): dict(
+    ("hard", "train"): dict(drift_slope_min_cycles=0.0, drift_slope_max_cycles=0.001),
+    ("hard", "test"): dict(drift_slope_min_cycles=0.0005, drift_slope_max_cycles=0.0015),
+    ("extreme", "train"): dict(
         drift_slope_min_cycles=0.0,
         drift_slope_max_cycles=0.01,
+        drift_per_stage=True,
         drift_knot_min_steps=100,
         drift_knot_max_steps=300,
     ),
-    ("hard", "test"): dict(
+    ("extreme", "test"): dict(
         drift_slope_min_cycles=0.005,
         drift_slope_max_cycles=0.015,
+        drift_per_stage=True,
         drift_knot_min_steps=40,
         drift_knot_max_steps=120,
     ),
 }
-_NO_DRIFT = dict(
-    drift_slope_min_cycles=0.0,
-    drift_slope_max_cycles=0.0,
-    drift_knot_min_steps=100,
-    drift_knot_max_steps=300,
-)
-_INITIAL_RANGE = {"easy": 0.1, "medium": 0.5, "hard": 0.5}
 
 
 @dataclass(frozen=True)
@@ -61,17 +72,23 @@ class OpsConfig:
     pulse_spacing_fs: float = 12.5e6  # T: 12.5 ns, an 80 MHz oscillator
     quadrature_points: int = 6  # K: time samples per slot for the energy / I^2 integrals
     # --- detection
+    detector: str = "polarizer"  # "polarizer" (s port) or "total" (both polarizations)
     samples_per_slot: int = 8  # samples of the detected trace per pulse slot
     detector_noise: float = 0.0  # std of additive noise on detected pulse energies (normalized)
-    # --- noise of the delay lines (eq. 2 / 4), in optical cycles
+    # --- noise of the delay lines (eq. 2 / 4), in optical cycles: a random walk whose step is
+    # N(mu, jitter_sigma) (the zero-mean part clipped at +- jitter_clip_sigmas sigma)
     jitter_sigma_cycles: float = 0.001
-    drift_slope_min_cycles: float = 0.0
+    jitter_clip_sigmas: float = 3.0
+    drift_slope_min_cycles: float = 0.0  # |mu| range, cycles per step
     drift_slope_max_cycles: float = 0.0
-    drift_knot_min_steps: int = 100
-    drift_knot_max_steps: int = 300
-    drift_bound_cycles: float = 10.0
-    # --- initial state and actuator
-    initial_range_cycles: float = 0.5  # set-points start uniform in +- this (per stage)
+    drift_per_stage: bool = False  # False: one mu shared by all stages
+    drift_knot_min_steps: int = 0  # 0: mu drawn at each reset, constant within the episode
+    drift_knot_max_steps: int = 0  # > 0: mu redrawn every knot_min..knot_max steps
+    drift_bound_cycles: float = 10.0  # the accumulated drift turns back at +- this
+    # --- initial state (the hidden delay errors at reset; set-points start at 0) and actuator
+    initial_sigma_cycles: float = 0.26
+    initial_clip_sigmas: float = 2.0
+    initial_offset_sigmas: float = 0.0
     max_step_cycles: float = 0.02  # actuator: largest set-point change per control step
     actuator_range_cycles: float = 30.0  # set-points are clipped to +- this
     absolute_action_range_cycles: float = 1.0  # absolute actions in [-1, 1] map to +- this
@@ -99,8 +116,13 @@ class OpsConfig:
         return self.cycles_to_fs(self.actuator_range_cycles)
 
     @property
-    def initial_range_fs(self) -> float:
-        return self.cycles_to_fs(self.initial_range_cycles)
+    def initial_sigma_fs(self) -> float:
+        return self.cycles_to_fs(self.initial_sigma_cycles)
+
+    @property
+    def initial_bound_cycles(self) -> float:
+        """Largest initial delay error per stage (clip plus offset), optical cycles."""
+        return self.initial_sigma_cycles * (self.initial_clip_sigmas + self.initial_offset_sigmas)
 
     @property
     def absolute_action_range_fs(self) -> float:
@@ -130,6 +152,12 @@ class OpsConfig:
         stage = data.pop("stage", 5)
         mode = data.pop("mode", "medium")
         split = data.pop("split", "train")
+        if "initial_range_cycles" in data:
+            raise ValueError(
+                "this configuration is from before the seed's stacker architecture and modes "
+                "(it has initial_range_cycles): a model trained on it does not apply to this "
+                "physics; train it again"
+            )
         return make_config(stage=stage, mode=mode, split=split, **data)
 
     def replace(self, **changes: Any) -> OpsConfig:
@@ -148,6 +176,8 @@ _INT_FIELDS = {
     "drift_knot_max_steps",
     "episode_steps",
 }
+_BOOL_FIELDS = {"drift_per_stage"}
+_STR_FIELDS = {"mode": MODES, "split": SPLITS, "detector": DETECTORS}
 
 
 def _check(cond: bool, message: str) -> None:
@@ -179,15 +209,20 @@ def make_config(
     )
 
     values: dict[str, Any] = dict(stage=stage, mode=mode, split=split)
-    values["initial_range_cycles"] = _INITIAL_RANGE[mode]
-    values.update(_DRIFT_DEFAULTS.get((mode, split), _NO_DRIFT))
+    values.update(_MODE_DEFAULTS[mode])
+    values.update(_DRIFT_DEFAULTS.get((mode, split), {}))
     values.update(overrides)
 
     for name in _FIELD_NAMES:
-        if name in ("mode", "split") or name not in values:
+        if name not in values:
             continue
         v = values[name]
-        if name in _INT_FIELDS:
+        if name in _STR_FIELDS:
+            allowed = _STR_FIELDS[name]
+            _check(v in allowed, f"{name} must be one of {', '.join(allowed)} (got {v!r})")
+        elif name in _BOOL_FIELDS:
+            _check(isinstance(v, bool), f"{name} must be true or false (got {v!r})")
+        elif name in _INT_FIELDS:
             ok = isinstance(v, int | float) and not isinstance(v, bool) and float(v).is_integer()
             _check(ok, f"{name} must be an integer (got {v!r})")
             values[name] = int(v)
@@ -216,9 +251,12 @@ def make_config(
     non_negative = (
         "detector_noise",
         "jitter_sigma_cycles",
+        "jitter_clip_sigmas",
         "drift_slope_min_cycles",
         "drift_slope_max_cycles",
-        "initial_range_cycles",
+        "initial_sigma_cycles",
+        "initial_clip_sigmas",
+        "initial_offset_sigmas",
     )
     for name in non_negative:
         _check(getattr(cfg, name) >= 0, f"{name} must be >= 0 (got {getattr(cfg, name)})")
@@ -236,14 +274,11 @@ def make_config(
         f"(got {cfg.drift_slope_min_cycles} > {cfg.drift_slope_max_cycles})",
     )
     _check(
-        1 <= cfg.drift_knot_min_steps <= cfg.drift_knot_max_steps,
-        "drift_knot_min_steps must be >= 1 and <= drift_knot_max_steps "
+        cfg.drift_knot_min_steps == cfg.drift_knot_max_steps == 0
+        or 1 <= cfg.drift_knot_min_steps <= cfg.drift_knot_max_steps,
+        "drift_knot_min_steps and drift_knot_max_steps must both be 0 (one drift per episode) or "
+        "1 <= drift_knot_min_steps <= drift_knot_max_steps "
         f"(got {cfg.drift_knot_min_steps}, {cfg.drift_knot_max_steps})",
-    )
-    _check(
-        cfg.initial_range_cycles <= cfg.actuator_range_cycles,
-        "initial_range_cycles must be <= actuator_range_cycles "
-        f"(got {cfg.initial_range_cycles} > {cfg.actuator_range_cycles})",
     )
     # Walk-off sanity: the quadrature assumes slots are far apart compared with the pulses.
     _check(

@@ -24,6 +24,11 @@ class OpsEnv(gym.Env):
     :mod:`ops_sim_ros.observation`. Reward: eq. (3), -(1 - P_N/P_max)^2. Episodes end by
     truncation after ``max_episode_steps`` steps, never by termination.
 
+    Every episode starts with the set-points at 0 and hidden delay errors drawn as the mode says
+    (``reset(options={"setpoints_fs": ..., "delay_errors_fs": ...})`` chooses either instead).
+    ``detector="polarizer"`` (default) or ``"total"`` and other overrides go to
+    :func:`~ops_sim_ros.config.make_config`.
+
     ``info``: ``power`` (P_N/P_max), ``delays_fs`` (applied delays: set-point + noise),
     ``setpoints_fs``, ``main_pulse_energy``, ``rejected_energy``, ``clipped``.
     """
@@ -88,16 +93,12 @@ class OpsEnv(gym.Env):
             r = self.sim.reset(seed=self.np_random)
         else:
             if self.sim.rng is not self.np_random:
-                self.sim.rng = self.np_random
-                self.sim.noise.rng = self.np_random
+                self.sim.use_rng(self.np_random)
             r = self.sim.reset()
-        if options and "setpoints_fs" in options:
-            sp = np.asarray(options["setpoints_fs"], dtype=np.float64).reshape(1, self.stage)
-            self.sim.setpoints_fs = np.clip(sp, -self.sim.range_fs, self.sim.range_fs)
-            r = self.sim._measure(
-                self.sim.setpoints_fs.copy(), np.zeros((1, self.stage), bool), advance=False
-            )
-            self.sim.last = r
+        options = options or {}
+        if "setpoints_fs" in options or "delay_errors_fs" in options:
+            # A chosen start: set-points and/or the hidden delay errors of the lines (fs).
+            r = self.sim.place(options.get("setpoints_fs"), options.get("delay_errors_fs"))
         self._last = r
         obs, info = self._obs_info(r)
         if self.render_mode == "human":

@@ -1,12 +1,21 @@
-"""Delay-line noise of eq. (2)/(4): e_t ~ N(mu_t, sigma), batched over environments and stages.
+"""Delay-line disturbance of eq. (2)/(4), batched over environments and stages (values in fs).
 
-* jitter: independent Gaussian, standard deviation ``sigma`` (fs), every step;
-* drift mu_t: piecewise linear in time. Each (env, stage) has a slope that is redrawn at random
-  knots (segment lengths uniform in [knot_min, knot_max] steps; |slope| uniform in
-  [slope_min, slope_max] fs/step, random sign). mu is kept within +-bound by turning the slope
-  towards zero when it crosses the bound (still piecewise linear). The drift is driven by a global
-  step counter that does NOT restart at episode resets; only :meth:`DelayNoise.restart` (used
-  when an episode is reset with an explicit seed) starts it again from mu = 0.
+The delay a line really applies is its set-point plus an offset e_t that the controller cannot
+see. As in the authors' code, e_t is a random walk:
+
+* at an episode's start e_0 is the mode's initial delay error: normal(0, sigma_0) clipped at
+  +- initial_clip_sigmas sigma_0, plus (hard, extreme) one offset per episode shared by all stages,
+  uniform in +- initial_offset_sigmas sigma_0;
+* every control step adds an increment N(mu_t, sigma) whose zero-mean part is clipped at
+  +- jitter_clip_sigmas sigma (the vibration of the paper's fast noise; the delays wander);
+* the drift mu_t (slow thermal noise) is 0 in easy and medium mode. With ``drift_knot_*_steps``
+  = 0 (hard) one mu per episode is drawn at reset, |mu| uniform in [slope_min, slope_max] with a
+  random sign, shared by all stages (or per stage with ``drift_per_stage``) and constant within
+  the episode. With knots > 0 (extreme) each slope is redrawn every knot_min..knot_max control
+  steps, on a step counter that does not restart at episode resets, so the slope process runs on
+  across episodes; the accumulated drift of an episode turns back at +- ``drift_bound_fs``.
+
+Only control steps advance the walk and the drift: the measurement at reset sees e_0.
 """
 
 from __future__ import annotations
@@ -17,29 +26,40 @@ _FOREVER = 1 << 62
 
 
 class DelayNoise:
-    """Stateful noise generator for ``num_envs`` x ``stage`` delay lines (all values in fs)."""
+    """Stateful disturbance of ``num_envs`` x ``stage`` delay lines (all values in fs)."""
 
     def __init__(
         self,
         num_envs: int,
         stage: int,
         jitter_sigma_fs: float,
+        jitter_clip_sigmas: float = 3.0,
         drift_slope_min_fs: float = 0.0,
         drift_slope_max_fs: float = 0.0,
-        drift_knot_min_steps: int = 100,
-        drift_knot_max_steps: int = 300,
+        drift_per_stage: bool = False,
+        drift_knot_min_steps: int = 0,
+        drift_knot_max_steps: int = 0,
         drift_bound_fs: float = np.inf,
+        initial_sigma_fs: float = 0.0,
+        initial_clip_sigmas: float = 2.0,
+        initial_offset_sigmas: float = 0.0,
         rng: np.random.Generator | None = None,
     ) -> None:
         self.num_envs = int(num_envs)
         self.stage = int(stage)
         self.sigma = float(jitter_sigma_fs)
+        self.clip = float(jitter_clip_sigmas) * self.sigma
         self.slope_min = float(drift_slope_min_fs)
         self.slope_max = float(drift_slope_max_fs)
+        self.per_stage = bool(drift_per_stage)
         self.knot_min = int(drift_knot_min_steps)
         self.knot_max = int(drift_knot_max_steps)
         self.bound = float(drift_bound_fs)
+        self.initial_sigma = float(initial_sigma_fs)
+        self.initial_clip = float(initial_clip_sigmas) * self.initial_sigma
+        self.initial_offset = float(initial_offset_sigmas) * self.initial_sigma
         self.drift_enabled = self.slope_max > 0.0
+        self.knots = self.drift_enabled and self.knot_max > 0
         self.restart(rng if rng is not None else np.random.default_rng())
 
     @classmethod
@@ -48,32 +68,69 @@ class DelayNoise:
             num_envs=num_envs,
             stage=config.stage,
             jitter_sigma_fs=config.jitter_sigma_fs,
+            jitter_clip_sigmas=config.jitter_clip_sigmas,
             drift_slope_min_fs=config.cycles_to_fs(config.drift_slope_min_cycles),
             drift_slope_max_fs=config.cycles_to_fs(config.drift_slope_max_cycles),
+            drift_per_stage=config.drift_per_stage,
             drift_knot_min_steps=config.drift_knot_min_steps,
             drift_knot_max_steps=config.drift_knot_max_steps,
             drift_bound_fs=config.cycles_to_fs(config.drift_bound_cycles),
+            initial_sigma_fs=config.initial_sigma_fs,
+            initial_clip_sigmas=config.initial_clip_sigmas,
+            initial_offset_sigmas=config.initial_offset_sigmas,
             rng=rng,
         )
 
+    # ------------------------------------------------------------------ episodes
     def restart(self, rng: np.random.Generator) -> None:
-        """Start the drift process again (mu = 0, fresh slopes) with a new random generator."""
+        """Start the process again with a new generator: zero offsets and drift, fresh knot slopes.
+
+        Episodes are then begun with :meth:`new_episodes`."""
         self.rng = rng
         self.global_step = 0
         shape = (self.num_envs, self.stage)
-        self.mu = np.zeros(shape)
-        self.slope = np.zeros(shape)
-        self.steps_left = np.zeros(shape, dtype=np.int64)
+        self.walk = np.zeros(shape)  # initial error + random walk of each line
+        self.mu = np.zeros(shape)  # drift accumulated in this episode
+        self.slope = np.zeros(shape)  # drift per control step
+        self.steps_left = np.full(shape, _FOREVER, dtype=np.int64)
         self._bound_safe = self._knot_in = _FOREVER
-        if self.drift_enabled:
-            self._redraw(np.ones(shape, dtype=bool))
+        if self.knots:
+            self._redraw_knots(np.ones(shape, dtype=bool))
 
-    def _redraw(self, where: np.ndarray) -> None:
-        count = int(where.sum())
-        mag = self.rng.uniform(self.slope_min, self.slope_max, size=count)
-        sign = np.where(self.rng.random(count) < 0.5, -1.0, 1.0)
-        self.slope[where] = mag * sign
-        self.steps_left[where] = self.rng.integers(self.knot_min, self.knot_max + 1, size=count)
+    def new_episodes(self, mask) -> None:
+        """Draw the initial delay errors (and, for per-episode drift, mu) where ``mask`` is True."""
+        mask = np.asarray(mask, dtype=bool)
+        count = int(mask.sum())
+        if count == 0:
+            return
+        e0 = self.rng.standard_normal((count, self.stage))
+        e0 *= self.initial_sigma
+        np.clip(e0, -self.initial_clip, self.initial_clip, out=e0)
+        if self.initial_offset > 0.0:
+            e0 += self.rng.uniform(-self.initial_offset, self.initial_offset, size=(count, 1))
+        self.walk[mask] = e0
+        self.mu[mask] = 0.0
+        if self.drift_enabled and not self.knots:
+            self.slope[mask] = self._draw_slopes(count)
+        self._update_bound_safe()
+
+    def _draw_slopes(self, count: int) -> np.ndarray:
+        """(count, stage) slopes: |slope| uniform in [min, max], random sign, maybe shared."""
+        cols = self.stage if self.per_stage else 1
+        mag = self.rng.uniform(self.slope_min, self.slope_max, size=(count, cols))
+        sign = np.where(self.rng.random((count, cols)) < 0.5, -1.0, 1.0)
+        return np.broadcast_to(mag * sign, (count, self.stage))
+
+    def _redraw_knots(self, where: np.ndarray) -> None:
+        if not self.per_stage:  # a knot of one stage is a knot of its whole env
+            where = np.repeat(where.any(axis=1, keepdims=True), self.stage, axis=1)
+        rows = where.any(axis=1)
+        slopes = self._draw_slopes(int(rows.sum()))
+        self.slope[rows] = np.where(where[rows], slopes, self.slope[rows])
+        lengths = self.rng.integers(self.knot_min, self.knot_max + 1, size=where.shape)
+        if not self.per_stage:
+            lengths[:] = lengths[:, :1]
+        self.steps_left[where] = lengths[where]
         self._knot_in = int(self.steps_left.min())
         self._update_bound_safe()
 
@@ -87,35 +144,39 @@ class DelayNoise:
         else:
             self._bound_safe = max(int(room / speed) - 1, 0)
 
-    def sample(self, advance: bool = True) -> np.ndarray:
-        """Return e_t, shape (num_envs, stage), in fs; ``advance``: move the drift one step first.
+    # ------------------------------------------------------------------ stepping
+    @property
+    def offset(self) -> np.ndarray:
+        """e_t, (num_envs, stage) fs: what each line adds to its set-point now (a fresh array)."""
+        return self.walk + self.mu
 
-        Episode resets measure without advancing (fresh jitter, same drift), so the drift is a
-        function of the number of control steps only.
-        """
-        e = self.rng.standard_normal((self.num_envs, self.stage))
-        e *= self.sigma
+    def sample(self, advance: bool = True) -> np.ndarray:
+        """Return e_t (a fresh (num_envs, stage) array, fs); ``advance``: take one step first."""
         if not advance:
-            e += self.mu
-            return e
+            return self.walk + self.mu
         self.global_step += 1
+        inc = self.rng.standard_normal((self.num_envs, self.stage))
+        inc *= self.sigma
+        np.clip(inc, -self.clip, self.clip, out=inc)
+        self.walk += inc
         if self.drift_enabled:
             self.mu += self.slope
-            # The bound and knot checks only run when they can fire (counters kept by _redraw
-            # and _update_bound_safe); the result is the same as checking every step.
+            # The bound and knot checks only run when they can fire (counters kept by
+            # _redraw_knots and _update_bound_safe); the result is the same as checking every step.
             self._bound_safe -= 1
             if self._bound_safe < 0:
                 out = np.abs(self.mu) > self.bound
                 if out.any():
                     self.slope[out] = -np.sign(self.mu[out]) * np.abs(self.slope[out])
                 self._update_bound_safe()
-            self.steps_left -= 1
-            self._knot_in -= 1
-            if self._knot_in <= 0:
-                knot = self.steps_left <= 0
-                if knot.any():
-                    self._redraw(knot)
-                else:
-                    self._knot_in = int(self.steps_left.min())
-            e += self.mu
-        return e
+            if self.knots:
+                self.steps_left -= 1
+                self._knot_in -= 1
+                if self._knot_in <= 0:
+                    knot = self.steps_left <= 0
+                    if knot.any():
+                        self._redraw_knots(knot)
+                    else:
+                        self._knot_in = int(self.steps_left.min())
+            return self.walk + self.mu
+        return self.walk.copy()

@@ -21,8 +21,8 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
-from numpy._core.umath import clip as _clip
 
+from .arrays import clip as _clip
 from .config import OpsConfig
 
 

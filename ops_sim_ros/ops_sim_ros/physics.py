@@ -1,26 +1,33 @@
-"""Batched physics of a polarization-multiplexed N-stage optical pulse stacker.
+"""Batched physics of the seed's N-stage optical pulse stacker (polarization-coded input).
 
-Model (see ``docs/physics.md`` for the derivation):
+Model (see ``docs/physics.md`` for the derivation and a figure of the paths):
 
-* Input: 2^N identical, H-polarized sech^2 pulses in time slots 0 .. 2^N - 1 (slot spacing T).
-* Stage j = 1..N, d = 2^(j-1):
-  1. a Pockels-cell gate swaps H <-> V in every slot s with floor(s / d) even (the earlier group
-     of each pair);
-  2. a polarizing beam splitter sends V through the delay line: V moves by d slots plus the delay
-     error delta_j (envelope shift and carrier phase exp(i w0 delta_j)); H goes straight;
-  3. the beams recombine and a half-wave plate at 22.5 deg mixes them:
-     H' = (H + V) / sqrt(2), V' = (H - V) / sqrt(2).
-* After the last stage an output polarizer passes H' (the output trace) and rejects V'.
+* Input: 2^N identical sech^2 pulses in time slots 0 .. 2^N - 1 (slot spacing T). A modulator in
+  front of the stacker gives each pulse a linear polarization (s or p) and a sign (+-1). The code
+  is recursive: start from the single label -s and expand it N times, every label into an ordered
+  pair (earlier pulse first): p -> (p, s), -p -> (-p, -s), s -> (-p, s), -s -> (p, -s).
+* Stage j = 1..N, d = 2^(j-1) (no per-stage gating; the whole beam goes through every stage):
+  1. a polarizing beam splitter sends p through the delay line: p moves by d slots plus the delay
+     error delta_j (envelope shift and carrier phase exp(i w0 delta_j)); s goes straight, so in
+     every coded pair the earlier pulse (p) lands on the later one (s);
+  2. the beams recombine and a wave plate at 45 deg mixes them:
+     p' = (p + s) / sqrt(2), s' = (s - p) / sqrt(2).
+* The perfectly stacked pulse leaves in s in time slot 2^N - 1. The detector integrates I^2 of
+  either the s port behind an output polarizer (``detector="polarizer"``, the default and the
+  physical choice: one stage gives the cos^4 fringe of the paper's Figure 2a) or the total
+  intensity of both polarizations (``detector="total"``, as the authors' code: the last stage's
+  phase is then invisible, so N stages pose an (N - 1)-stage phase problem and N = 1 is flat).
 
 Every path through the stacker is labelled by its delay pattern b (bit j-1 set: went through
-stage j's delay line), so the field in output slot s is exactly
+stage j's delay line), so the field of port q (s or p) in output slot m is exactly
 
-    E_s(t) = sum_b C[s, b] * exp(i w0 s_b) * a(t - s_b),     s_b = sum_j bit_j(b) delta_j,
+    E_qm(t) = sum_b C_q[m, b] * exp(i w0 s_b) * a(t - s_b),     s_b = sum_j bit_j(b) delta_j,
 
-with C a constant real matrix of the geometry, built once by propagating unit amplitudes. Slot
-energies and the second-order detector signal (integral of I^2) are integrals over t, done with a
-K-point Gauss-Legendre rule in x = tanh(t / t0), which is exact for an unshifted sech^2 and sech^4
-and converges geometrically for shifted ones. For a batch all of this is ONE real matrix product.
+with C_s, C_p constant real matrices of the geometry, built once by propagating the coded unit
+amplitudes. Slot energies and the second-order detector signal (integral of I^2) are integrals
+over t, done with a K-point Gauss-Legendre rule in x = tanh(t / t0), which is exact for an
+unshifted sech^2 and sech^4 and converges geometrically for shifted ones. For a batch all of this
+is ONE real matrix product.
 """
 
 from __future__ import annotations
@@ -29,36 +36,54 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import SPEED_OF_LIGHT_NM_PER_FS
+from .config import DETECTORS, SPEED_OF_LIGHT_NM_PER_FS
 
 SECH_FWHM_FACTOR = 2.0 * np.arccosh(np.sqrt(2.0))  # FWHM of sech^2(t/t0) = 1.7627 t0
 
 
-def geometry_matrices(stage: int) -> tuple[np.ndarray, np.ndarray]:
-    """Propagate unit amplitudes through the stacker geometry.
+def input_coding(stage: int) -> list[tuple[str, int]]:
+    """Polarization and sign of each of the 2^N input pulses, earliest first: [("p", 1), ...].
 
-    Returns ``(C_H, C_V)``, each (2^(N+1) - 1 slots, 2^N delay patterns): the amplitude with which
-    input pulse energy of delay pattern b arrives in output slot s of the transmitted (H) and the
-    rejected (V) port of the output polarizer, before the envelope and carrier factors.
+    The modulator's code of the seed: start from -s and expand each label N times into an
+    ordered pair, p -> (p, s), -p -> (-p, -s), s -> (-p, s), -s -> (p, -s).
+    """
+    labels = [("s", -1)]
+    for _ in range(int(stage)):
+        expanded = []
+        for pol, sign in labels:
+            if pol == "p":
+                expanded += [("p", sign), ("s", sign)]
+            else:
+                expanded += [("p", -sign), ("s", sign)]
+        labels = expanded
+    return labels
+
+
+def geometry_matrices(stage: int, through: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Propagate the coded unit amplitudes through the stacker geometry.
+
+    Returns ``(C_s, C_p)``, each (2^(N+1) - 1 time slots, 2^N delay patterns): the amplitude with
+    which light of delay pattern b arrives in time slot m of the s port (the one the output
+    polarizer passes) and of the p port, before the envelope and carrier factors. ``through``:
+    stop after that many stages (0: the coded input), for figures of the paths.
     """
     n = int(stage)
+    last = n if through is None else int(through)
     num_in = 2**n
     num_slots = 2 ** (n + 1) - 1
-    amp = np.zeros((2, num_slots, num_in))  # (polarization H/V, slot, pattern)
-    amp[0, :num_in, 0] = 1.0
-    slots = np.arange(num_slots)
+    amp = np.zeros((2, num_slots, num_in))  # (polarization s/p, time slot, pattern)
+    for k, (pol, sign) in enumerate(input_coding(n)):
+        amp[0 if pol == "s" else 1, k, 0] = sign
     inv_sqrt2 = 1.0 / np.sqrt(2.0)
-    for j in range(1, n + 1):
+    for j in range(1, last + 1):
         d = 2 ** (j - 1)
-        gated = (slots // d) % 2 == 0
-        amp[:, gated] = amp[::-1, gated]  # Pockels cell: swap H and V in gated slots
-        h = amp[0]
-        v = np.zeros_like(h)  # PBS: V takes the delay line (d slots, pattern bit j-1)
+        s = amp[0]
+        p = np.zeros_like(s)  # PBS: p takes the delay line (d slots, pattern bit j-1)
         assert not np.any(amp[1, num_slots - d :]), "energy would leave the slot window"
-        v[d:, d:] = amp[1, : num_slots - d, : num_in - d]
+        p[d:, d:] = amp[1, : num_slots - d, : num_in - d]
         # A pattern bit j-1 is never set before stage j, so the shift above is exact; check it.
         assert not np.any(amp[1][:, d:][:, ((np.arange(d, num_in) >> (j - 1)) & 1) == 1])
-        amp = np.stack(((h + v) * inv_sqrt2, (h - v) * inv_sqrt2))  # half-wave plate at 22.5 deg
+        amp = np.stack(((s - p) * inv_sqrt2, (p + s) * inv_sqrt2))  # wave plate at 45 deg
     return amp[0].copy(), amp[1].copy()
 
 
@@ -66,18 +91,20 @@ def geometry_matrices(stage: int) -> tuple[np.ndarray, np.ndarray]:
 class StackerOutput:
     """Everything one physics evaluation gives, for a batch of B delay-error vectors.
 
-    Energies are normalized by the input energy (2^N pulses), so they sum to 1 over both ports.
+    Energies are normalized by the input energy (2^N pulses), so detected plus rejected energy
+    sums to 1. "Detected" follows the stacker's detector: the s port behind the output polarizer
+    (``polarizer``) or both polarizations (``total``, which rejects nothing).
     """
 
     power: np.ndarray  # (B,) P_N / P_max: second-order detector signal, normalized
-    slot_energies: np.ndarray  # (B, S) energy in each output slot of the transmitted (H) port
-    main_pulse_energy: np.ndarray  # (B,) energy in the stacked-pulse slot (time 2^N - 1)
-    rejected_energy: np.ndarray  # (B,) energy leaving through the output polarizer's V port
+    slot_energies: np.ndarray  # (B, S) detected energy in each output slot
+    main_pulse_energy: np.ndarray  # (B,) detected energy in the stacked-pulse slot (2^N - 1)
+    rejected_energy: np.ndarray  # (B,) energy the detector does not see (the polarizer's p port)
     rejected_slot_energies: np.ndarray | None = None  # (B, S) when computed explicitly
 
     @property
     def satellite_energies(self) -> np.ndarray:
-        """(B, S) H-port energies with the main slot set to zero."""
+        """(B, S) detected energies with the main slot set to zero."""
         sat = self.slot_energies.copy()
         sat[:, (sat.shape[1] - 1) // 2] = 0.0
         return sat
@@ -96,6 +123,9 @@ class PulseStacker:
         Time samples per slot for the energy and I^2 integrals (Gauss-Legendre in tanh(t/t0)).
     samples_per_slot:
         Samples of the detected intensity trace per slot (see :meth:`trace`).
+    detector:
+        ``"polarizer"`` (default): the s port behind an output polarizer; ``"total"``: the
+        intensity of both polarizations (the authors' code).
     dtype:
         ``np.float32`` (fast, default) or ``np.float64`` (reference) for the big matrix product.
 
@@ -110,11 +140,16 @@ class PulseStacker:
         pulse_fwhm_fs: float = 1000.0,
         quadrature_points: int = 6,
         samples_per_slot: int = 8,
+        detector: str = "polarizer",
         dtype: type = np.float32,
     ) -> None:
         self.stage = int(stage)
         if self.stage < 1:
             raise ValueError(f"stage must be >= 1 (got {stage})")
+        if detector not in DETECTORS:
+            raise ValueError(f"detector must be one of {', '.join(DETECTORS)} (got {detector!r})")
+        self.detector = detector
+        self._total = detector == "total"
         self.wavelength_nm = float(wavelength_nm)
         self.pulse_fwhm_fs = float(pulse_fwhm_fs)
         self.quadrature_points = int(quadrature_points)
@@ -128,15 +163,16 @@ class PulseStacker:
         self.omega0 = 2.0 * np.pi / self.optical_period_fs  # rad / fs
         self.t0_fs = self.pulse_fwhm_fs / SECH_FWHM_FACTOR
 
-        c_h, c_v = geometry_matrices(n)
-        # Light only ever reaches odd time slots (stage 1 moves every pulse to one), so the
-        # output window is the 2^N - 1 odd slots 1, 3, ..., 2^(N+1) - 3; even rows are zero.
-        assert not np.any(c_h[0::2]) and not np.any(c_v[0::2])
-        self.c_h, self.c_v = c_h[1::2], c_v[1::2]
-        c_h, c_v = self.c_h, self.c_v
+        c_s, c_p = geometry_matrices(n)
+        # Light only ever reaches odd time slots (every input pulse of an even slot is p-coded and
+        # delayed by stage 1; each later stage moves by an even number of slots), so the output
+        # window is the 2^N - 1 odd slots 1, 3, ..., 2^(N+1) - 3; even rows are zero.
+        assert not np.any(c_s[0::2]) and not np.any(c_p[0::2])
+        self.c_s, self.c_p = c_s[1::2], c_p[1::2]
+        c_s, c_p = self.c_s, self.c_p
         self.slot_times_T = np.arange(1, 2 ** (n + 1) - 2, 2)  # slot centres in units of T
-        self._ct_h = np.ascontiguousarray(c_h.T, dtype=self.dtype)  # (P, S)
-        self._ct_hv = np.ascontiguousarray(np.concatenate([c_h, c_v]).T, dtype=self.dtype)
+        self._ct_s = np.ascontiguousarray(c_s.T, dtype=self.dtype)  # (P, S)
+        self._ct_sp = np.ascontiguousarray(np.concatenate([c_s, c_p]).T, dtype=self.dtype)
         patterns = np.arange(self.num_patterns)
         self.bits = ((patterns[:, None] >> np.arange(n)[None, :]) & 1).astype(np.float64)
         self._bits_t = np.ascontiguousarray(self.bits.T)  # (N, P)
@@ -159,18 +195,20 @@ class PulseStacker:
         # cycle in float64 before anything is rounded to float32, 2 pi folded into the pattern bits.
         sp = -(-self.num_slots // 8) * 8
         self._slots_padded = sp
-        self._ctp_h = np.zeros((self.num_patterns, sp), dtype=np.float32)
-        self._ctp_h[:, : self.num_slots] = c_h.T
-        self._ctp_hv = np.zeros((self.num_patterns, 2 * sp), dtype=np.float32)
-        self._ctp_hv[:, : self.num_slots] = c_h.T
-        self._ctp_hv[:, sp : sp + self.num_slots] = c_v.T
+        self._ctp_s = np.zeros((self.num_patterns, sp), dtype=np.float32)
+        self._ctp_s[:, : self.num_slots] = c_s.T
+        self._ctp_sp = np.zeros((self.num_patterns, 2 * sp), dtype=np.float32)
+        self._ctp_sp[:, : self.num_slots] = c_s.T
+        self._ctp_sp[:, sp : sp + self.num_slots] = c_p.T
         self._phase_bits32 = (2.0 * np.pi * self._bits_t).astype(np.float32)  # (N, P)
         self._neg_c32 = (-(self._bits_t - 0.5) / self.t0_fs).astype(np.float32)  # (N, P)
         self._nodes32 = np.arctanh(x).astype(np.float32)[:, None, None]  # (K, 1, 1)
         self._w32 = (w / (1.0 - x * x)).astype(np.float32)
         self._buffers: dict[tuple[int, bool], tuple[np.ndarray, ...]] = {}
-        # Small batches (a single env) take a float64 complex path with fewer numpy calls.
-        self._ct_h_complex = self.c_h.T.astype(np.complex128)
+        # Small batches (a single env) take a float64 complex path with fewer numpy calls; with
+        # the total detector it needs both ports (columns S..2S-1: the p port).
+        single_ct = np.concatenate([c_s, c_p]).T if self._total else c_s.T
+        self._ct_single_complex = single_ct.astype(np.complex128)
         self._bits_t_complex = self._bits_t * (1j * self.omega0)
         # envelope argument u_k - (s_p - m)/t0 = nodes_k + d @ A  (A: (N, K*P))
         k, npat = self.quadrature_points, self.num_patterns
@@ -189,8 +227,9 @@ class PulseStacker:
     def evaluate(self, delay_errors_fs, rejected_port: bool = False) -> StackerOutput:
         """Evaluate a batch of delay-error vectors; see :class:`StackerOutput`.
 
-        With ``rejected_port=True`` the V port is computed explicitly (one wider matrix product);
-        otherwise ``rejected_energy`` is 1 - (H-port energy), which the tests show equals it.
+        With ``rejected_port=True`` the polarizer's p port is computed explicitly (one wider
+        matrix product); otherwise ``rejected_energy`` is 1 - (detected energy), which the tests
+        show equals it. The ``total`` detector rejects nothing (zeros).
         """
         d = np.asarray(delay_errors_fs, dtype=np.float64)
         single = d.ndim == 1
@@ -204,27 +243,31 @@ class PulseStacker:
         batch = d.shape[0]
         s = self.num_slots
         k = self.quadrature_points
+        rejected_slots = None
         if batch == 1 and not rejected_port:
             energies, power = self._single(d)
         elif self.dtype == np.float32:
-            energies, power, rej_inten = self._fast_intensity(d, rejected_port)
+            energies, power, rejected_slots = self._fast_intensity(d, rejected_port)
         else:
-            ct = self._ct_hv if rejected_port else self._ct_h
-            inten = self._intensity_at_nodes(d, ct)  # (K, B, S[*2]) |E|^2 at the nodes
-            inten_h = inten[:, :, :s]
-            energies = (self._w @ inten_h.reshape(k, -1)).reshape(batch, -1)
-            energies = energies[:, :s].astype(np.float64) * self._energy_scale
-            np.square(inten_h, out=inten_h)
-            p_n = (self._w @ inten_h.reshape(k, -1)).reshape(batch, -1)[:, :s]
-            power = p_n.sum(axis=1, dtype=np.float64) * self._power_scale
-        rejected_slots = None
-        if rejected_port:
-            if self.dtype == np.float32:
-                rejected_slots = rej_inten
-            else:
+            both = rejected_port or self._total
+            inten = self._intensity_at_nodes(d, self._ct_sp if both else self._ct_s)
+            inten_det = inten[:, :, :s]  # (K, B, S) detected |E|^2 at the nodes
+            if rejected_port and not self._total:
                 rej = np.ascontiguousarray(inten[:, :, s:]).reshape(k, -1)
                 rejected_slots = (self._w @ rej).reshape(batch, s).astype(np.float64)
                 rejected_slots *= self._energy_scale
+            if self._total:
+                inten_det = inten_det + inten[:, :, s:]
+            energies = (self._w @ inten_det.reshape(k, -1)).reshape(batch, -1)
+            energies = energies.astype(np.float64) * self._energy_scale
+            np.square(inten_det, out=inten_det)
+            p_n = (self._w @ inten_det.reshape(k, -1)).reshape(batch, -1)
+            power = p_n.sum(axis=1, dtype=np.float64) * self._power_scale
+        if rejected_port and rejected_slots is None:
+            rejected_slots = np.zeros((batch, s))  # the total detector rejects nothing
+        if self._total:
+            rejected = np.zeros(batch)
+        elif rejected_port:
             rejected = rejected_slots.sum(axis=1)
         else:
             rejected = 1.0 - energies.sum(axis=1)
@@ -253,15 +296,18 @@ class PulseStacker:
         np.cosh(env, out=env)
         u = np.exp(np.dot(d, self._bits_t_complex))  # (1, P) carrier factors exp(i w0 s_p)
         e = np.divide(u, env.reshape(self.quadrature_points, self.num_patterns))
-        iw = np.abs(e.dot(self._ct_h_complex))  # (K, S) |E| at the nodes
+        iw = np.abs(e.dot(self._ct_single_complex))  # (K, S) or (K, 2S) |E| at the nodes
         np.multiply(iw, iw, out=iw)  # |E|^2
+        if self._total:
+            s = self.num_slots
+            iw = np.add(iw[:, :s], iw[:, s:])  # both polarizations
         iw *= self._sqrt_w  # sqrt(w_k) |E|^2
         energies = np.dot(self._sqrt_w_energy, iw)  # (1, S)
         power = np.array([np.vdot(iw, iw) * self._power_scale])
         return energies, power
 
     def _energies_and_power(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """H-port slot energies (B, S) and power (B,) for a checked (B, N) float64 array.
+        """Detected slot energies (B, S) and power (B,) for a checked (B, N) float64 array.
 
         What :meth:`evaluate` computes, without its checks and output record (the simulation's
         per-step path).
@@ -276,7 +322,7 @@ class PulseStacker:
     def _fast_intensity(
         self, d: np.ndarray, rejected_port: bool
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """The float32 batched path: (energies (B, S), power (B,), V-port energies or None).
+        """The float32 batched path: (energies (B, S), power (B,), p-port energies or None).
 
         Same integrals as :meth:`_intensity_at_nodes` (the float64 reference), arranged for
         fewer, cheaper passes over the (K, B, P) arrays:
@@ -290,9 +336,10 @@ class PulseStacker:
         """
         batch = d.shape[0]
         k, npat, s = self.quadrature_points, self.num_patterns, self.num_slots
-        ct = self._ctp_hv if rejected_port else self._ctp_h
+        both = rejected_port or self._total
+        ct = self._ctp_sp if both else self._ctp_s
         cols = ct.shape[1]
-        key = (batch, rejected_port)
+        key = (batch, both)
         buf = self._buffers.get(key)
         if buf is None:
             if len(self._buffers) > 8:
@@ -318,21 +365,27 @@ class PulseStacker:
         np.matmul(g.reshape(2 * k * batch, npat), ct, out=e.reshape(2 * k * batch, cols))
         np.square(e, out=e)
         inten = np.add(e[0], e[1], out=e[0]).reshape(k, batch * cols)  # |E|^2 at the nodes
+        rejected = None
+        if both:
+            sp = cols // 2
+            inten3 = inten.reshape(k, batch, cols)
+            if self._total:
+                inten = np.add(inten3[:, :, :sp], inten3[:, :, sp:]).reshape(k, batch * sp)
+            else:
+                wsum = (self._w32 @ inten).reshape(batch, cols)
+                rejected = np.multiply(wsum[:, sp : sp + s], self._energy_scale, dtype=np.float64)
+                inten = np.ascontiguousarray(inten3[:, :, :sp]).reshape(k, batch * sp)
+            cols = sp
         wsum = (self._w32 @ inten).reshape(batch, cols)
         energies = np.multiply(wsum[:, :s], self._energy_scale, dtype=np.float64)
-        rejected = None
-        if rejected_port:
-            sp = cols // 2
-            rejected = np.multiply(wsum[:, sp : sp + s], self._energy_scale, dtype=np.float64)
-            inten = inten.reshape(k, batch, cols)[:, :, :sp]
         np.square(inten, out=inten)
-        p_n = (self._w32 @ inten.reshape(k, -1)).reshape(batch, -1)
+        p_n = (self._w32 @ inten).reshape(batch, -1)
         power = p_n.sum(axis=1, dtype=np.float64)
         power *= self._power_scale
         return energies, power, rejected
 
     def _intensity_at_nodes(self, d: np.ndarray, ct: np.ndarray) -> np.ndarray:
-        """|E|^2 at the K quadrature nodes of every output slot: (K, B, S) (S doubled for HV).
+        """|E|^2 at the K quadrature nodes of every output slot: (K, B, S) (S doubled for s|p).
 
         The float64 reference path (``dtype=np.float64``); float32 stackers use
         :meth:`_fast_intensity`, which the tests check against this one.
@@ -388,7 +441,7 @@ class PulseStacker:
         return power_to_reward(self.power(delay_errors_fs))
 
     def slot_energies(self, delay_errors_fs) -> np.ndarray:
-        """H-port energy per output slot, normalized by the input energy."""
+        """Detected energy per output slot, normalized by the input energy."""
         return self.evaluate(delay_errors_fs).slot_energies
 
     def trace(self, delay_errors_fs) -> np.ndarray:
@@ -408,9 +461,15 @@ class PulseStacker:
 
     def trace_time_axis_ns(self, pulse_spacing_fs: float = 12.5e6) -> np.ndarray:
         """Time of every trace sample in ns (output slot i is time slot 2i + 1)."""
-        from .rendering import trace_time_axis_ns
-
         return trace_time_axis_ns(self.num_slots, self.samples_per_slot, pulse_spacing_fs)
+
+
+def trace_time_axis_ns(num_slots: int, samples_per_slot: int, pulse_spacing_fs: float):
+    """Time (ns) of every trace sample: output slot i is time slot 2i + 1, spaced 2T."""
+    spp = int(samples_per_slot)
+    idx = np.arange(int(num_slots) * spp)
+    slot = 2 * (idx // spp) + 1
+    return (slot + 2.0 * (idx % spp - spp // 2) / spp) * pulse_spacing_fs * 1e-6
 
 
 def power_to_reward(power, p_min: float = 0.0) -> np.ndarray:
@@ -427,5 +486,6 @@ def stacker_from_config(config, dtype: type = np.float32) -> PulseStacker:
         pulse_fwhm_fs=config.pulse_fwhm_fs,
         quadrature_points=config.quadrature_points,
         samples_per_slot=config.samples_per_slot,
+        detector=config.detector,
         dtype=dtype,
     )

@@ -6,13 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def trace_time_axis_ns(num_slots: int, samples_per_slot: int, pulse_spacing_fs: float):
-    """Time (ns) of every trace sample: output slot i is time slot 2i + 1, spaced 2T."""
-    spp = int(samples_per_slot)
-    idx = np.arange(int(num_slots) * spp)
-    slot = 2 * (idx // spp) + 1
-    return (slot + 2.0 * (idx % spp - spp // 2) / spp) * pulse_spacing_fs * 1e-6
+from .physics import trace_time_axis_ns
 
 
 def draw_trace(

@@ -18,7 +18,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 from std_srvs.srv import Trigger
 
-from .config import MAX_STAGE, MODES, SPLITS, make_config
+from .config import DETECTORS, MAX_STAGE, MODES, SPLITS, make_config
 from .node_params import ParamSpec, check_value, coerce, declare_all
 from .ros_interface import (
     QOS_RELIABLE,
@@ -41,10 +41,10 @@ from .simulation import BatchedSimulation
 # Noise and optics figures a user may override; names and units as in OpsConfig (optical cycles).
 # A negative value means "the mode's default".
 _CONFIG_OVERRIDES = (
-    ("jitter_sigma_cycles", "std of the fast delay jitter, optical cycles"),
-    ("drift_slope_max_cycles", "largest drift slope, optical cycles per step (hard mode)"),
-    ("drift_slope_min_cycles", "smallest drift slope, optical cycles per step (hard mode)"),
-    ("initial_range_cycles", "initial set-points uniform in +- this, optical cycles"),
+    ("jitter_sigma_cycles", "std of each step of the delays' random walk, optical cycles"),
+    ("drift_slope_max_cycles", "largest drift, optical cycles per step (hard, extreme)"),
+    ("drift_slope_min_cycles", "smallest drift, optical cycles per step (hard, extreme)"),
+    ("initial_sigma_cycles", "std of the initial delay errors (clipped at 2 sigma), cycles"),
     ("actuator_range_cycles", "set-points are clipped to +- this, optical cycles"),
     ("detector_noise", "std of additive noise on detected pulse energies (normalized)"),
 )
@@ -54,7 +54,13 @@ PARAMS = [
     ParamSpec(
         "mode", "medium", "difficulty: initial state and drift (paper Fig. 4)", choices=MODES
     ),
-    ParamSpec("split", "train", "hard-mode noise variant (train or shifted test)", choices=SPLITS),
+    ParamSpec("split", "train", "drift variant (train or shifted test)", choices=SPLITS),
+    ParamSpec(
+        "detector",
+        "polarizer",
+        "what the detector sees: the s port behind a polarizer, or the total intensity",
+        choices=DETECTORS,
+    ),
     ParamSpec("seed", -1, "random seed; -1 draws one from the OS", low=-1, high=2**31 - 1),
     ParamSpec(
         "rate_hz", 100.0, "free-running step rate", low=0.0, high=100000.0, low_exclusive=True
@@ -75,6 +81,7 @@ _SPECS = {p.name: p for p in PARAMS}
 _LIVE = {
     "mode",
     "split",
+    "detector",
     "rate_hz",
     "lockstep",
     "diagnostics_period_s",
@@ -82,7 +89,7 @@ _LIVE = {
     "jitter_sigma_cycles",
     "drift_slope_max_cycles",
     "drift_slope_min_cycles",
-    "initial_range_cycles",
+    "initial_sigma_cycles",
     "actuator_range_cycles",
 }
 _WARN_PERIOD_S = 2.0
@@ -96,6 +103,7 @@ def config_from_params(values: dict):
             stage=values["stage"],
             mode=values["mode"],
             split=values["split"],
+            detector=values["detector"],
             samples_per_slot=values["samples_per_slot"],
             **overrides,
         )
@@ -131,6 +139,7 @@ class SimNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
             f"stage={self._config.stage} mode={self._config.mode} split={self._config.split} "
+            f"detector={self._config.detector} "
             + ("lockstep" if self._values["lockstep"] else f"rate={self._values['rate_hz']} Hz")
         )
         self._publish()
@@ -174,6 +183,7 @@ class SimNode(Node):
                 ("stage", self._config.stage),
                 ("mode", self._config.mode),
                 ("split", self._config.split),
+                ("detector", self._config.detector),
                 ("lockstep", self._values["lockstep"]),
                 ("step", self._steps),
                 ("episode", self._episodes),
@@ -241,13 +251,10 @@ class SimNode(Node):
         )
         self._values = new
         if config != self._config:
-            # Noise figures and mode apply from now on: the simulation is rebuilt around the
-            # current set-points and random stream (its drift restarts with the new figures).
-            old = self._sim
+            # Noise figures, mode and detector apply from now on; the set-points and the delay
+            # lines' present errors carry over (the drift restarts with the new figures).
             self._config = config
-            self._sim = BatchedSimulation(config, num_envs=1, seed=old.rng)
-            self._sim.setpoints_fs = old.setpoints_fs.copy()
-            self._sim.last = old.last
+            self._sim = self._sim.with_config(config)
         if timers_changed:
             self._restart_timers()
         return SetParametersResult(successful=True)

@@ -1,8 +1,9 @@
 """The one state machine of a batch of simulated stackers (env, vector env and the ROS node use it).
 
-State per environment: the delay set-points (fs, relative to the nominal delays) and the step
-count of the current episode; shared: the delay noise (drift + jitter) and the random generator.
-Every step: set-points (clipped to the actuator range) + noise sample -> applied delays -> physics.
+State per environment: the delay set-points (fs, relative to the nominal delays; 0 at every
+reset), the hidden delay-line offsets (the initial delay error plus its random walk and drift, see
+:mod:`ops_sim_ros.noise`) and the step count of the current episode. Every step: set-points
+(clipped to the actuator range) + offsets -> applied delays -> physics.
 """
 
 from __future__ import annotations
@@ -10,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy._core.umath import clip as _clip  # the bare ufunc: much cheaper than np.clip
 
+from .arrays import clip as _clip
 from .config import OpsConfig
 from .noise import DelayNoise
 from .physics import stacker_from_config
@@ -28,9 +29,9 @@ class StepResult:
     applied_fs: np.ndarray  # (B, N) delays really applied: set-point + noise
     power: np.ndarray  # (B,) P_N / P_max
     reward: np.ndarray  # (B,) eq. (3), -(1 - power)^2
-    pulse_energies: np.ndarray  # (B, S) detected H-port slot energies (normalized, + det. noise)
-    main_pulse_energy: np.ndarray  # (B,) true energy of the stacked pulse (normalized)
-    rejected_energy: np.ndarray  # (B,) energy lost at the output polarizer (normalized)
+    pulse_energies: np.ndarray  # (B, S) detected slot energies (normalized, + detector noise)
+    main_pulse_energy: np.ndarray  # (B,) true detected energy of the stacked pulse (normalized)
+    rejected_energy: np.ndarray  # (B,) energy the detector does not see (polarizer's p port)
     clipped: np.ndarray  # (B, N) bool: the requested set-point was outside the actuator range
     step_count: np.ndarray  # (B,) steps taken in the current episode (0 right after reset)
     truncated: np.ndarray  # (B,) bool: step_count reached episode_steps
@@ -53,6 +54,7 @@ class BatchedSimulation:
         self.stage = config.stage
         self.stacker = stacker_from_config(config)
         self._main_slot = self.stacker.main_slot
+        self._total = config.detector == "total"
         self.optical_period_fs = config.optical_period_fs
         self.max_step_fs = config.max_step_fs
         self.range_fs = config.actuator_range_fs
@@ -62,14 +64,26 @@ class BatchedSimulation:
         self.step_count = np.zeros(self.num_envs, dtype=np.int64)
         self.last: StepResult | None = None
 
+    def with_config(self, config: OpsConfig) -> BatchedSimulation:
+        """A simulation with other figures that continues this one: same random stream,
+        set-points, step counts and delay-line errors (the drift process starts afresh)."""
+        if config.stage != self.stage:
+            raise ValueError(f"stage must stay {self.stage} (got {config.stage})")
+        sim = BatchedSimulation(config, num_envs=self.num_envs, seed=self.rng)
+        sim.setpoints_fs = self.setpoints_fs.copy()
+        sim.step_count = self.step_count.copy()
+        sim.noise.walk = self.noise.offset
+        sim.last = self.last
+        return sim
+
     # ------------------------------------------------------------------ episode control
     def reset(self, mask=None, seed=None) -> StepResult:
         """Start new episodes (all, or where ``mask`` is True) and measure the initial state.
 
-        ``seed`` (int or ``np.random.Generator``) restarts the random stream AND the drift process,
-        so the same seed gives the same episodes. Without a seed the drift simply continues.
-        The returned measurement uses fresh jitter on the current drift; it does not advance the
-        drift (only control steps do).
+        A new episode has its set-points at 0 and a fresh hidden delay error (the mode's initial
+        state). ``seed`` (int or ``np.random.Generator``) restarts the random stream AND the
+        drift process, so the same seed gives the same episodes; without a seed the knot
+        process of the extreme mode's drift simply continues.
         """
         if seed is not None:
             self.rng = _as_generator(seed)
@@ -77,11 +91,10 @@ class BatchedSimulation:
         if mask is None:
             mask = np.ones(self.num_envs, dtype=bool)
         mask = np.asarray(mask, dtype=bool)
-        count = int(mask.sum())
-        r = self.config.initial_range_fs
         sp = self.setpoints_fs.copy()  # fresh array: earlier results may still view the old one
-        sp[mask] = self.rng.uniform(-r, r, size=(count, self.stage))
+        sp[mask] = 0.0
         self.setpoints_fs = sp
+        self.noise.new_episodes(mask)
         self.step_count[mask] = 0
         result = self._measure(
             self.setpoints_fs.copy(), np.zeros_like(self.setpoints_fs, bool), advance=False
@@ -96,6 +109,28 @@ class BatchedSimulation:
             result.truncated[keep] = self.last.truncated[keep]
         self.last = result
         return result
+
+    def use_rng(self, rng: np.random.Generator) -> None:
+        """Draw all further randomness (noise, new episodes) from ``rng``; nothing restarts."""
+        self.rng = rng
+        self.noise.rng = rng
+
+    def place(self, setpoints_fs=None, delay_errors_fs=None) -> StepResult:
+        """Put every env at given set-points and/or hidden delay-line errors (B, N) fs and
+        measure there without taking a step (for figures, tests and chosen starts)."""
+        shape = (self.num_envs, self.stage)
+        if setpoints_fs is not None:
+            sp = np.array(setpoints_fs, dtype=np.float64).reshape(shape)
+            if not np.isfinite(sp).all():
+                raise ValueError("set-points must be finite")
+            self.setpoints_fs = _clip(sp, -self.range_fs, self.range_fs)
+        if delay_errors_fs is not None:
+            err = np.array(delay_errors_fs, dtype=np.float64).reshape(shape)
+            if not np.isfinite(err).all():
+                raise ValueError("delay errors must be finite")
+            self.noise.walk = err - self.noise.mu
+        self.last = self._measure(self.setpoints_fs.copy(), np.zeros(shape, bool), advance=False)
+        return self.last
 
     # ------------------------------------------------------------------ stepping
     def step_setpoints(self, setpoints_fs) -> StepResult:
@@ -137,12 +172,15 @@ class BatchedSimulation:
             x = 1.0 - float(power[0])
             reward = np.array([-(x * x)])
             main = np.array([float(true_energies[0, self._main_slot])])
-            rejected = np.array([1.0 - float(np.add.reduce(true_energies, axis=None))])
+            rejected = np.array([0.0 if self._total else 1.0 - float(true_energies.sum())])
         else:
             reward = np.subtract(power, 1.0)
             np.multiply(reward, np.subtract(1.0, power), out=reward)  # -(1 - power)^2
             main = true_energies[:, self._main_slot].copy()
-            rejected = np.subtract(1.0, np.add.reduce(true_energies, axis=1))
+            if self._total:  # both polarizations are detected: nothing is rejected
+                rejected = np.zeros(self.num_envs)
+            else:
+                rejected = np.subtract(1.0, np.add.reduce(true_energies, axis=1))
         return StepResult(
             setpoints_fs=setpoints,
             applied_fs=applied,

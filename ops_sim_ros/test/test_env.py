@@ -47,8 +47,10 @@ def test_spaces_and_info():
     _, _, _, _, info2 = env.step(np.ones(4, dtype=np.float32))
     step = info2["setpoints_fs"] - info["setpoints_fs"]
     np.testing.assert_allclose(step, env.config.max_step_fs)
-    noise = info2["delays_fs"] - info2["setpoints_fs"]
-    assert 0 < np.abs(noise).max() < 6 * env.config.jitter_sigma_fs
+    # the hidden delay errors moved by one step of the random walk (clipped at 3 sigma)
+    walk = (info2["delays_fs"] - info2["setpoints_fs"]) - (info["delays_fs"] - info["setpoints_fs"])
+    assert 0 < np.abs(walk).max() <= 3 * env.config.jitter_sigma_fs + 1e-9
+    assert np.all(info["setpoints_fs"] == 0.0)  # a new episode starts from zero set-points
 
 
 def test_same_seed_same_episode_and_different_seed_differs():
@@ -79,8 +81,8 @@ def test_easy_start_is_better_than_medium_on_average():
     powers = {}
     for mode in ("easy", "medium"):
         env = OpsEnv(stage=3, mode=mode)
-        powers[mode] = np.mean([env.reset(seed=s)[1]["power"] for s in range(40)])
-    assert powers["easy"] > powers["medium"] + 0.2
+        powers[mode] = np.mean([env.reset(seed=s)[1]["power"] for s in range(100)])
+    assert powers["easy"] > powers["medium"] + 0.1
 
 
 def test_render_rgb_array_draws_the_trace():

@@ -1,0 +1,54 @@
+"""The controllers that need no training, by name: one registry for the nodes, ``evaluate
+--controller`` and the benchmark.
+
+Every controller is a pure state machine with the same three calls, with no notion of time or
+transport (the ROS nodes and the in-process evaluation drive them the same way):
+
+* ``reset(setpoints_fs)``: start again from these set-points (a new episode, a restarted rig);
+* ``command() -> np.ndarray``: the set-points (fs, one per stage) to apply now;
+* ``observe(power, pulse_energies)``: what the last command produced (P_N / P_max and the
+  detected slot energies, normalized as on ``/ops/intensity``).
+
+A controller is built from the *nominal* model of the rig (an :class:`~ops_sim_ros.config.OpsConfig`
+holding the wavelength, pulse width, detector, ...), never from the simulator's true state.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+
+
+class Controller(Protocol):
+    stage: int
+
+    def reset(self, setpoints_fs) -> None: ...
+
+    def command(self) -> np.ndarray: ...
+
+    def observe(self, power: float, pulse_energies=None) -> None: ...
+
+
+def _make_spgd(model, params: dict[str, Any], setpoints_fs, seed):
+    from .spgd import SpgdParams, SpgdPid
+
+    return SpgdPid(model.stage, SpgdParams(**params), setpoints_fs=setpoints_fs, seed=seed)
+
+
+_FACTORIES = {"spgd": _make_spgd}
+CONTROLLERS = tuple(_FACTORIES)
+
+
+def make_controller(
+    name: str, model, params: dict[str, Any] | None = None, setpoints_fs=None, seed=None
+) -> Controller:
+    """A controller by name for the nominal ``model`` (an OpsConfig); ValueError names the
+    choices or the bad parameter."""
+    if name not in _FACTORIES:
+        raise ValueError(f"controller must be one of {', '.join(CONTROLLERS)} (got {name!r})")
+    sp = np.zeros(model.stage) if setpoints_fs is None else setpoints_fs
+    try:
+        return _FACTORIES[name](model, dict(params or {}), sp, seed)
+    except TypeError as exc:  # an unknown keyword of the controller's parameters
+        raise ValueError(f"bad {name} parameter: {exc}") from None
