@@ -1,0 +1,139 @@
+"""The argparse pieces the ``train``, ``evaluate`` and ``benchmark`` CLIs share.
+
+One place for: the parser with its help formatter (each default printed once), the environment
+options (``--stage``, ``--mode``, ``--split``, ``--detector``, choices from
+:mod:`ops_sim_ros.config`), the ``key=value`` parser (``--hyperparams``, ``--controller-param``,
+``--env``) and the removal of ``--ros-args ...`` that ``ros2 run`` users may append.
+
+Pure: imports neither rclpy nor torch nor gymnasium.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterable
+from typing import Any
+
+from ops_sim_ros.config import DETECTORS, MAX_STAGE, MODES, SPLITS, OpsConfig
+
+#: The environment options and their defaults (the defaults of OpsConfig).
+ENV_DEFAULTS: dict[str, Any] = {
+    "stage": OpsConfig.stage,
+    "mode": OpsConfig.mode,
+    "split": OpsConfig.split,
+    "detector": OpsConfig.detector,
+}
+_CHOICES = {"mode": MODES, "split": SPLITS, "detector": DETECTORS}
+_HELP = {
+    "stage": f"number of stacking stages N (1 to {MAX_STAGE})",
+    "mode": "difficulty mode (initial errors and drift)",
+    "split": "noise variant: train, or test (the shifted drift of hard and extreme)",
+    "detector": "polarizer: the s port (physical); total: both polarizations (authors' code)",
+}
+#: ``defaults`` value meaning "taken from the model being evaluated".
+FROM_MODEL = None
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends ``(default: X)`` once: not where the help already names its default, nor for
+    options whose default is None / False (flags, "the model's")."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text or action.default in (None, False, argparse.SUPPRESS, []):
+            return text
+        return super()._get_help_string(action)
+
+
+def make_parser(prog: str, description: str) -> argparse.ArgumentParser:
+    """An ArgumentParser named ``ros2 run ops_gym_bridge <prog>`` with :class:`HelpFormatter`."""
+    return argparse.ArgumentParser(
+        prog=f"ros2 run ops_gym_bridge {prog}",
+        description=description,
+        formatter_class=HelpFormatter,
+    )
+
+
+def add_env_arguments(
+    parser: argparse.ArgumentParser,
+    defaults: dict[str, Any] | None = None,
+    several: Iterable[str] = (),
+    include: Iterable[str] = ("stage", "mode", "split", "detector"),
+) -> None:
+    """Add ``--stage``, ``--mode``, ``--split``, ``--detector`` to ``parser``.
+
+    ``defaults`` overrides :data:`ENV_DEFAULTS` per name; a default of :data:`FROM_MODEL` (None)
+    reads "(default: the model's)". A name in ``several`` becomes a plural option taking one or
+    more values (``--modes easy hard``, ``--splits train test``; dest ``modes``, ``splits``)
+    whose default is a list (all choices unless ``defaults`` says otherwise).
+    """
+    defaults = {**ENV_DEFAULTS, **(defaults or {})}
+    several = set(several)
+    for name in include:
+        default = defaults[name]
+        kwargs: dict[str, Any] = {"help": _HELP[name]}
+        if name == "stage":
+            kwargs["type"] = int
+        else:
+            kwargs["choices"] = _CHOICES[name]
+        flag = f"--{name}"
+        if name in several:
+            flag += "s"
+            kwargs["nargs"] = "+"
+            if default is not FROM_MODEL and not isinstance(default, list | tuple):
+                default = list(_CHOICES.get(name, [default]))
+            default = None if default is None else list(default)
+        if default is FROM_MODEL:
+            kwargs["help"] += " (default: the model's)"
+        parser.add_argument(flag, default=default, **kwargs)
+
+
+def add_key_value_argument(parser: argparse.ArgumentParser, *flags: str, help: str) -> None:
+    """A repeatable ``KEY=VALUE ...`` option (collected as strings; see parse_key_values)."""
+    parser.add_argument(
+        *flags, nargs="+", action="extend", default=[], metavar="KEY=VALUE", help=help
+    )
+
+
+def parse_key_value(text: str, what: str = "parameter") -> tuple[str, Any]:
+    """``"key=value"`` -> (key, value parsed as YAML: ``1`` int, ``0.1`` float, ``[64, 64]``
+    list, ``true`` bool, anything else a string). ValueError names ``what`` was malformed."""
+    import yaml
+
+    if "=" not in text:
+        raise ValueError(f"{what} {text!r} must look like key=value")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    if not key.isidentifier():
+        raise ValueError(f"{what} name {key!r} is not a valid name")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError as exc:
+        raise ValueError(f"cannot parse the value of {key}: {raw!r} ({exc})") from None
+    return key, value
+
+
+def parse_key_values(items: Iterable[str] | None, what: str = "parameter") -> dict[str, Any]:
+    """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}`` (the last of a repeated key wins)."""
+    return dict(parse_key_value(text, what) for text in items or [])
+
+
+def strip_ros_args(argv: list[str]) -> list[str]:
+    """Drop ``--ros-args ... [--]`` that ``ros2 run`` users may append."""
+    out, skipping = [], False
+    for a in argv:
+        if a == "--ros-args":
+            skipping = True
+            continue
+        if skipping:
+            if a == "--":
+                skipping = False
+            continue
+        out.append(a)
+    return out
+
+
+def parse_args(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """Parse ``argv`` (default: sys.argv[1:]) without ``--ros-args``."""
+    return parser.parse_args(strip_ros_args(list(sys.argv[1:] if argv is None else argv)))
