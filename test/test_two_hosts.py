@@ -9,8 +9,11 @@ docs/deployment.md describes the same set-up on real machines.
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
 import subprocess
+import sys
 import time
 
 import numpy as np
@@ -90,6 +93,27 @@ def wait_until(condition, timeout: float, what: str, *procs):
 def spgd_iterations(proc) -> int:
     found = re.findall(r"iteration (\d+): P_N/P_max", proc.output)
     return int(found[-1]) if found else 0
+
+
+def test_without_root_the_reason_to_skip_is_given():
+    """Where namespaces cannot be made, the module is skipped with the reason (here: not root)."""
+    code = "from ros_testing import netns_unavailable_reason as r; print(r())"
+    if os.geteuid() != 0:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    elif shutil.which("setpriv") is None:
+        pytest.skip("no setpriv to drop root")
+    else:
+        nobody = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+        out = subprocess.run(
+            [*nobody, sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            cwd=REPO / "test",
+            timeout=60,
+            env=dict(os.environ, PYTHONPATH=str(REPO / "test")),
+        )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "making network namespaces (ip netns add) needs root"
 
 
 def test_hosts_are_separate_machines_on_one_link(hosts):
