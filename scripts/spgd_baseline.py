@@ -1,14 +1,15 @@
 #!/usr/bin/env python3
-"""The SPGD-PID baseline in the three modes: where the classic controller works and where it stalls.
+"""The SPGD-PID baseline in every mode: where the classic controller works and where it stalls.
 
 Runs ``ros2 run ops_gym_bridge evaluate --spgd`` (the same evaluation as for learned policies:
-5 seeds x 5 episodes of 200 steps, train and test environments) for easy, medium and hard mode at
+5 seeds x 5 episodes of 200 steps, train and test environments) for every mode at
 the given stage, then draws docs/figures/spgd_baseline.png (P_N / P_max against the step, mean and
 standard deviation over seeds, on the test environment) and prints a markdown table.
 
 ``--sweep`` instead measures, in-process, whether other SPGD settings change the picture in medium
 and hard mode, and whether SPGD can hold the optimum against the hard-mode drift when it starts
-next to it (``initial_sigma_cycles=0.025, initial_offset_sigmas=0``): mean P_N / P_max over the last 50 of 300 iterations.
+next to it (``initial_sigma_cycles=0.025, initial_offset_sigmas=0``): mean P_N / P_max over
+the last 50 of 300 iterations.
 
 Usage (after `source setup.bash`): python scripts/spgd_baseline.py [--stage 5] [--out runs/spgd]
                                    python scripts/spgd_baseline.py --sweep [--stage 5]
@@ -26,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-MODES = ("easy", "medium", "hard")
 
 
 def evaluate(stage: int, mode: str, out: Path) -> dict:
@@ -64,29 +64,22 @@ SWEEP = (  # (gain, ki, perturbation_fs, momentum)
 
 
 def sweep(stage: int, seeds: int = 4, iterations: int = 300) -> None:
-    from ops_controller_ros.spgd import SpgdParams, SpgdPid
+    from ops_gym_bridge.rollouts import rollout_controller
     from ops_sim_ros.config import make_config
-    from ops_sim_ros.simulation import BatchedSimulation
 
     def run(params, mode, **overrides):
+        config = make_config(stage, mode, "test", **overrides)
         finals = []
         for seed in range(seeds):
-            sim = BatchedSimulation(make_config(stage, mode, "test", **overrides), 1, seed=seed)
-            sim.reset(seed=seed)
-            ctrl = SpgdPid(stage, params, sim.setpoints_fs[0], seed=seed)
-            powers = []
-            for _ in range(iterations):
-                for _ in range(2):
-                    result = sim.step_setpoints(ctrl.command()[None])
-                    ctrl.observe(result.power[0])
-                powers.append(result.power[0])
-            finals.append(np.mean(powers[-50:]))
+            # The evaluation's own loop; two steps per SPGD iteration, P_N after each iteration.
+            r = rollout_controller("spgd", params, config, config, 1, 2 * iterations, seed)
+            finals.append(r["power"][0, 2 * (iterations - 49) :: 2].mean())
         return np.mean(finals)
 
     print("| gain | ki | perturbation (fs) | momentum | medium | hard | hard, start at optimum |")
     print("|---|---|---|---|---|---|---|")
     for gain, ki, pert, mom in SWEEP:
-        p = SpgdParams(gain=gain, ki=ki, perturbation_fs=pert, momentum=mom)
+        p = dict(gain=gain, ki=ki, perturbation_fs=pert, momentum=mom)
         print(
             f"| {gain} | {ki} | {pert} | {mom} | {run(p, 'medium'):.3f} | {run(p, 'hard'):.3f} | "
             f"{run(p, 'hard', initial_sigma_cycles=0.025, initial_offset_sigmas=0.0):.3f} |",
@@ -105,6 +98,8 @@ def main():
         sweep(args.stage)
         return
 
+    from ops_sim_ros.config import MODES
+
     results = {m: evaluate(args.stage, m, Path(args.out) / f"n{args.stage}_{m}") for m in MODES}
 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -113,7 +108,7 @@ def main():
     fig = Figure(figsize=(7.5, 3.6), dpi=110)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
-    colors = {"easy": "tab:green", "medium": "tab:orange", "hard": "tab:red"}
+    colors = {"easy": "tab:green", "medium": "tab:orange", "hard": "tab:red", "extreme": "k"}
     rows = []
     for mode, res in results.items():
         test = res["splits"]["test"]

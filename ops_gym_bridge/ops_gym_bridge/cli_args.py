@@ -64,9 +64,10 @@ def add_env_arguments(
     """Add ``--stage``, ``--mode``, ``--split``, ``--detector`` to ``parser``.
 
     ``defaults`` overrides :data:`ENV_DEFAULTS` per name; a default of :data:`FROM_MODEL` (None)
-    reads "(default: the model's)". A name in ``several`` becomes a plural option taking one or
-    more values (``--modes easy hard``, ``--splits train test``; dest ``modes``, ``splits``)
-    whose default is a list (all choices unless ``defaults`` says otherwise).
+    reads "(default: the model's; <ENV_DEFAULTS value> for a controller)". A name in
+    ``several`` becomes a plural option taking one or more values (``--modes easy hard``,
+    ``--splits train test``; dest ``modes``, ``splits``) whose default is a list (all
+    choices unless ``defaults`` says otherwise).
     """
     defaults = {**ENV_DEFAULTS, **(defaults or {})}
     several = set(several)
@@ -85,7 +86,7 @@ def add_env_arguments(
                 default = list(_CHOICES.get(name, [default]))
             default = None if default is None else list(default)
         if default is FROM_MODEL:
-            kwargs["help"] += " (default: the model's)"
+            kwargs["help"] += f" (default: the model's; {ENV_DEFAULTS[name]} for a controller)"
         parser.add_argument(flag, default=default, **kwargs)
 
 

@@ -1,4 +1,10 @@
-"""``ros2 run ops_gym_bridge evaluate``: evaluate a trained model or the SPGD-PID baseline.
+"""``ros2 run ops_gym_bridge evaluate``: evaluate a trained model or a controller.
+
+A model directory (from ``train --out``), or ``--controller NAME`` (``--spgd``: SPGD-PID) from
+:mod:`ops_controller_ros.controllers` with ``--controller-param KEY=VALUE``. ``--env KEY=VALUE``
+changes the simulated environment (e.g. ``detector_noise=0.01 pulse_fwhm_fs=1200``) without
+telling the controller: it is built for the nominal configuration of stage, mode, split and
+detector.
 
 Runs ``--episodes`` episodes for each of ``--seeds`` on the training and the testing environment
 (``--splits train test``; the testing environment of hard mode has the shifted noise of the paper's
@@ -14,43 +20,60 @@ the model's is refused with a clear error.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ops_sim_ros.config import SPLITS, make_config
 
+from . import cli_args
 from .envs import EPISODE_STEPS
 from .recording import new_bag_path
-
-MODES = ("easy", "medium", "hard")
-SPLITS = ("train", "test")
+from .rollouts import rollout_controller, rollout_policy
 
 
 class EvaluationError(RuntimeError):
     pass
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="ros2 run ops_gym_bridge evaluate",
-        description="Evaluate a trained model (DIR from train --out) or the SPGD-PID baseline.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+def _controller_names() -> tuple[str, ...]:
+    from ops_controller_ros.controllers import CONTROLLERS
+
+    return CONTROLLERS
+
+
+def build_parser():
+    p = cli_args.make_parser(
+        "evaluate",
+        "Evaluate a trained model (DIR from train --out) or a controller that needs no training.",
     )
     p.add_argument("model", nargs="?", help="model directory (or its model.zip)")
-    p.add_argument("--spgd", action="store_true", help="evaluate the SPGD-PID baseline instead")
-    p.add_argument("--stage", type=int, help="stage to evaluate on (default: the model's)")
-    p.add_argument("--mode", choices=MODES, help="mode to evaluate on (default: the model's)")
     p.add_argument(
-        "--splits",
-        nargs="+",
-        choices=SPLITS,
-        default=list(SPLITS),
-        help="environments: train and/or test (shifted noise in hard mode)",
+        "--controller",
+        choices=_controller_names(),
+        help="evaluate this controller (ops_controller_ros.controllers) instead of a model",
+    )
+    p.add_argument(
+        "--spgd",
+        dest="controller",
+        action="store_const",
+        const="spgd",
+        help="the same as --controller spgd",
+    )
+    cli_args.add_env_arguments(
+        p,
+        defaults={
+            "stage": cli_args.FROM_MODEL,
+            "mode": cli_args.FROM_MODEL,
+            "detector": cli_args.FROM_MODEL,
+            "split": list(SPLITS),
+        },
+        several=("split",),
     )
     p.add_argument("--episodes", type=int, default=5, help="episodes per seed and split")
     p.add_argument(
@@ -61,17 +84,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="evaluation seeds (the mean +- std is over seeds)",
     )
     p.add_argument("--steps", type=int, default=EPISODE_STEPS, help="steps per episode")
-    p.add_argument("--out", help="output directory (default: MODEL/eval, or ./eval_spgd)")
+    p.add_argument("--out", help="output directory (default: MODEL/eval, or ./eval_CONTROLLER)")
     p.add_argument(
         "--record", metavar="DIR", type=new_bag_path, help="also record a bag of episodes"
     )
-    p.add_argument(
+    cli_args.add_key_value_argument(
+        p,
+        "--controller-param",
         "--spgd-param",
-        nargs="+",
-        action="extend",
-        default=[],
-        metavar="KEY=VALUE",
-        help="SpgdParams overrides for --spgd (e.g. gain=0.1)",
+        help="the controller's parameters (e.g. gain=0.1 for spgd); --spgd-param: the same",
+    )
+    cli_args.add_key_value_argument(
+        p,
+        "--env",
+        help="overrides of the simulated environment (OpsConfig fields, e.g. detector_noise=0.01 "
+        "pulse_fwhm_fs=1200) that the controller is not told of",
     )
     p.add_argument("--no-plot", action="store_true", help="do not write curve.png")
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (0: default)")
@@ -79,64 +106,101 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-# ---------------------------------------------------------------------------------- rollouts
-def rollout_policy(
-    predict, stage: int, mode: str, split: str, episodes: int, steps: int, seed: int
-) -> dict[str, np.ndarray]:
-    """``episodes`` parallel episodes with a batched ``predict(obs) -> actions``.
+# ---------------------------------------------------------------------------------- subjects
+@dataclass
+class Subject:
+    """What is evaluated and on which environment: a controller or a loaded policy."""
 
-    Returns ``power`` (episodes, steps + 1): P_N/P_max after reset and after each step, and
-    ``returns`` (episodes,): the sum of rewards.
-    """
-    from ops_sim_ros.vec_env import OpsVectorEnv
+    name: str
+    stage: int
+    mode: str
+    detector: str
+    env_overrides: dict[str, Any]
+    meta: dict[str, Any] = field(default_factory=dict)
+    controller: str | None = None
+    controller_params: dict[str, Any] = field(default_factory=dict)
+    policy: Any = None  # LoadedPolicy
 
-    env = OpsVectorEnv(
-        num_envs=episodes, stage=stage, mode=mode, split=split, max_episode_steps=steps
-    )
+    def nominal_config(self, split: str, steps: int):
+        """The configuration the controller is built for (no --env overrides)."""
+        return make_config(
+            self.stage, self.mode, split, detector=self.detector, episode_steps=steps
+        )
+
+    def sim_config(self, split: str, steps: int):
+        """The configuration the simulator runs (with the --env overrides)."""
+        return self.nominal_config(split, steps).replace(**self.env_overrides)
+
+    def run(self, split: str, episodes: int, steps: int, seed: int) -> dict[str, np.ndarray]:
+        sim = self.sim_config(split, steps)
+        if self.controller is not None:
+            nominal = self.nominal_config(split, steps)
+            return rollout_controller(
+                self.controller, self.controller_params, nominal, sim, episodes, steps, seed
+            )
+        return rollout_policy(self.policy.predict, sim, episodes, steps, seed)
+
+
+def _parse(items: list[str], what: str) -> dict[str, Any]:
     try:
-        obs, info = env.reset(seed=seed)
-        power = np.empty((episodes, steps + 1))
-        power[:, 0] = np.asarray(info["power"], dtype=np.float64)
-        returns = np.zeros(episodes)
-        for t in range(steps):
-            actions = predict(obs)
-            obs, rewards, _, _, info = env.step(actions)
-            returns += rewards
-            if t == steps - 1:
-                final = info.get("final_info") if isinstance(info, dict) else None
-                if final is not None and "power" in final:
-                    power[:, t + 1] = np.asarray(final["power"], dtype=np.float64)
-                    continue
-            power[:, t + 1] = np.asarray(info["power"], dtype=np.float64)
-        return {"power": power, "returns": returns}
-    finally:
-        env.close()
+        return cli_args.parse_key_values(items, what)
+    except ValueError as exc:
+        raise EvaluationError(str(exc)) from None
 
 
-def rollout_spgd(
-    params_overrides: dict, stage: int, mode: str, split: str, episodes: int, steps: int, seed: int
-) -> dict[str, np.ndarray]:
-    """SPGD-PID episodes, driven exactly as its node drives the simulator (absolute set-points,
-    one measurement per command)."""
-    from ops_controller_ros.spgd import SpgdParams, SpgdPid
+def resolve_subject(args) -> Subject:
+    """The controller or policy ``args`` ask for, with the environment to evaluate it on."""
+    if bool(args.controller) == bool(args.model):
+        raise EvaluationError("give a model directory or --controller NAME (exactly one)")
+    env_overrides = _parse(args.env, "--env override")
+    for key in ("stage", "mode", "split", "detector", "episode_steps"):
+        if key in env_overrides:
+            raise EvaluationError(f"--env {key}=...: use --{key.replace('_', '-')} instead")
+    if args.controller:
+        params = _parse(args.controller_param, "--controller-param")
+        subject = Subject(
+            name=args.controller,
+            stage=args.stage or cli_args.ENV_DEFAULTS["stage"],
+            mode=args.mode or cli_args.ENV_DEFAULTS["mode"],
+            detector=args.detector or cli_args.ENV_DEFAULTS["detector"],
+            env_overrides=env_overrides,
+            controller=args.controller,
+            controller_params=params,
+            meta={"controller": args.controller, "controller_params": params},
+        )
+        _check_controller(subject)
+        return subject
+    loaded, stage = load_for_evaluation(args.model, args.stage)
+    trained_detector = (loaded.metadata.get("config") or {}).get("detector", "polarizer")
+    return Subject(
+        name=loaded.algo,
+        stage=stage,
+        mode=args.mode or loaded.mode,
+        detector=args.detector or trained_detector,
+        env_overrides=env_overrides,
+        policy=loaded,
+        meta={
+            "controller": loaded.algo,
+            "model": str(loaded.path),
+            "trained_stage": loaded.stage,
+            "trained_mode": loaded.mode,
+            "trained_detector": trained_detector,
+            "trained_timesteps": loaded.metadata.get("timesteps"),
+        },
+    )
 
-    from ops_sim_ros import OpsEnv
 
-    params = SpgdParams(**params_overrides)
-    power = np.empty((episodes, steps + 1))
-    returns = np.zeros(episodes)
-    env = OpsEnv(stage=stage, mode=mode, split=split, max_episode_steps=steps)
-    for e in range(episodes):
-        _, info = env.reset(seed=seed * 1000 + e)
-        ctl = SpgdPid(stage, params, setpoints_fs=info["setpoints_fs"], seed=seed * 1000 + e)
-        power[e, 0] = info["power"]
-        for t in range(steps):
-            r = env.sim.step_setpoints(ctl.command()[None, :])
-            ctl.observe(float(r.power[0]))
-            power[e, t + 1] = float(r.power[0])
-            returns[e] += float(r.reward[0])
-    env.close()
-    return {"power": power, "returns": returns}
+def _check_controller(subject: Subject) -> None:
+    """Build the controller and both configurations once, so bad values fail before any run."""
+    from ops_controller_ros.controllers import make_controller
+
+    try:
+        subject.sim_config("train", 1)
+        make_controller(
+            subject.controller, subject.nominal_config("train", 1), subject.controller_params
+        )
+    except ValueError as exc:
+        raise EvaluationError(str(exc)) from None
 
 
 # ---------------------------------------------------------------------------------- summary
@@ -159,22 +223,9 @@ def summarize(per_seed: list[dict[str, np.ndarray]]) -> dict[str, Any]:
     }
 
 
-def _parse_kv(items: list[str]) -> dict[str, Any]:
-    import yaml
-
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise EvaluationError(f"{item!r} must look like key=value")
-        k, v = item.split("=", 1)
-        out[k.strip()] = yaml.safe_load(v)
-    return out
-
-
 def load_for_evaluation(model_path: str, stage: int | None):
     """(LoadedPolicy, stage) or EvaluationError for a model that cannot run on ``stage``."""
     from ops_controller_ros.policy_io import PolicyLoadError, load_policy
-    from ops_sim_ros.config import make_config
     from ops_sim_ros.observation import ObservationSpec
 
     try:
@@ -197,41 +248,17 @@ def load_for_evaluation(model_path: str, stage: int | None):
     return loaded, stage
 
 
-def evaluate(args) -> dict[str, Any]:
-    if args.spgd == bool(args.model):
-        raise EvaluationError("give a model directory or --spgd (exactly one)")
+def evaluate(args, subject: Subject | None = None) -> dict[str, Any]:
+    """Evaluate what ``args`` name (or ``subject``): the results of evaluation.json."""
     if args.episodes < 1 or args.steps < 1 or not args.seeds:
         raise EvaluationError("--episodes and --steps must be >= 1 and --seeds non-empty")
-    if args.spgd:
-        stage = args.stage or 5
-        mode = args.mode or "medium"
-        overrides = _parse_kv(args.spgd_param)
-        name = "spgd"
-        meta = {"controller": "spgd", "spgd_params": overrides}
-
-        def run(split, seed):
-            return rollout_spgd(overrides, stage, mode, split, args.episodes, args.steps, seed)
-    else:
-        loaded, stage = load_for_evaluation(args.model, args.stage)
-        mode = args.mode or loaded.mode
-        name = loaded.algo
-        meta = {
-            "controller": loaded.algo,
-            "model": str(loaded.path),
-            "trained_stage": loaded.stage,
-            "trained_mode": loaded.mode,
-            "trained_timesteps": loaded.metadata.get("timesteps"),
-        }
-
-        def run(split, seed):
-            return rollout_policy(
-                loaded.predict, stage, mode, split, args.episodes, args.steps, seed
-            )
-
+    subject = subject or resolve_subject(args)
     results: dict[str, Any] = {
-        **meta,
-        "stage": stage,
-        "mode": mode,
+        **subject.meta,
+        "stage": subject.stage,
+        "mode": subject.mode,
+        "detector": subject.detector,
+        "env_overrides": subject.env_overrides,
         "episodes_per_seed": args.episodes,
         "seeds": list(args.seeds),
         "steps": args.steps,
@@ -241,10 +268,11 @@ def evaluate(args) -> dict[str, Any]:
     for split in args.splits:
         per_seed = []
         for seed in args.seeds:
-            per_seed.append(run(split, seed))
+            per_seed.append(subject.run(split, args.episodes, args.steps, seed))
             if not args.quiet:
                 print(
-                    f"[evaluate] {name} stage={stage} mode={mode} split={split} seed={seed}: "
+                    f"[evaluate] {subject.name} stage={subject.stage} mode={subject.mode} "
+                    f"split={split} seed={seed}: "
                     f"final P_N/P_max {per_seed[-1]['power'][:, -1].mean():.4f}",
                     flush=True,
                 )
@@ -306,15 +334,14 @@ def format_table(results: dict[str, Any]) -> str:
 
 
 def run(argv: list[str] | None = None) -> int:
-    from .train import strip_ros_args
-
-    args = build_parser().parse_args(strip_ros_args(list(sys.argv[1:] if argv is None else argv)))
+    args = cli_args.parse_args(build_parser(), argv)
     if args.torch_threads > 0:
         import torch
 
         torch.set_num_threads(args.torch_threads)
     try:
-        results = evaluate(args)
+        subject = resolve_subject(args)
+        results = evaluate(args, subject)
     except (EvaluationError, ValueError) as exc:
         print(f"[evaluate] error: {exc}", file=sys.stderr, flush=True)
         return 2
@@ -325,12 +352,12 @@ def run(argv: list[str] | None = None) -> int:
 
         out = resolve_paths(args.model)[0].parent / "eval"
     else:
-        out = Path("eval_spgd")
+        out = Path(f"eval_{args.controller}")
     written = write_outputs(results, out, plot=not args.no_plot)
     if args.record:
         from .recording import record_episodes
 
-        written.append(record_episodes(args, results["stage"], results["mode"], Path(args.record)))
+        written.append(record_episodes(args, subject, Path(args.record)))
     print(format_table(results))
     print(f"[evaluate] wrote {', '.join(str(p) for p in written)}", flush=True)
     return 0

@@ -11,9 +11,12 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from ops_controller_ros.policy_io import ALGOS
 
+from .cli_args import parse_key_value
+
+__all__ = ["ALGOS", "CLI_KEYS", "apply_overrides", "load", "parse_override", "sb3_kwargs"]
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
-ALGOS = ("ppo", "td3", "sac")
 #: Keys the CLI handles itself; everything else goes to the SB3 constructor.
 CLI_KEYS = (
     "normalize_obs",
@@ -38,17 +41,7 @@ def load(algo: str) -> dict[str, Any]:
 
 def parse_override(text: str) -> tuple[str, Any]:
     """``"key=value"`` -> (key, YAML-parsed value)."""
-    if "=" not in text:
-        raise ValueError(f"hyper-parameter override {text!r} must look like key=value")
-    key, raw = text.split("=", 1)
-    key = key.strip()
-    if not key.isidentifier():
-        raise ValueError(f"hyper-parameter name {key!r} is not a valid name")
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else None
-    except yaml.YAMLError as exc:
-        raise ValueError(f"cannot parse the value of {key}: {raw!r} ({exc})") from None
-    return key, value
+    return parse_key_value(text, "hyper-parameter override")
 
 
 def apply_overrides(

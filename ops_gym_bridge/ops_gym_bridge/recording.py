@@ -2,8 +2,9 @@
 
 Runs ``--episodes`` episodes of the first split and seed in-process through
 :class:`ops_sim_ros.bag_recording.RecordBag` (an OpsEnv wrapper), driven as the evaluation drives
-them: SPGD-PID exactly as ``rollout_spgd`` (same seeds, so the recorded episodes are the
-evaluated ones), a learned policy one observation at a time. Open the bag with
+them: a controller by :func:`ops_gym_bridge.rollouts.controller_episodes` (the evaluation's own
+loop and seeds, so the recorded episodes are the evaluated ones), a learned policy one
+observation at a time. Open the bag with
 ``ros2 bag info/play DIR`` or in Foxglove (docs/recording.md).
 """
 
@@ -24,50 +25,45 @@ def new_bag_path(value: str) -> Path:
     return path
 
 
-def record_episodes(args, stage: int, mode: str, path: Path) -> Path:
+def record_episodes(args, subject, path: Path) -> Path:
+    """Record ``args.episodes`` episodes of ``subject`` (an evaluate.Subject) on the first of
+    ``args.splits`` and ``args.seeds``."""
     from ops_sim_ros.bag_recording import RecordBag
+    from ops_sim_ros.env import OpsEnv
 
-    from ops_sim_ros import OpsEnv
+    from .rollouts import controller_episodes, episode_seed
 
     split, seed = args.splits[0], args.seeds[0]
-    controller = "spgd" if args.spgd else "policy"
     env = RecordBag(
-        OpsEnv(stage=stage, mode=mode, split=split, max_episode_steps=args.steps),
+        OpsEnv.from_config(subject.sim_config(split, args.steps)),
         path,
         custom_data={
             "source": "ops_gym_bridge evaluate",
-            "controller": controller,
-            "stage": str(stage),
-            "mode": mode,
+            "controller": subject.controller or "policy",
+            "stage": str(subject.stage),
+            "mode": subject.mode,
             "split": split,
             "seed": str(seed),
             "episodes": str(args.episodes),
         },
     )
     try:
-        if args.spgd:
-            from ops_controller_ros.spgd import SpgdParams, SpgdPid
-
-            from .evaluate import _parse_kv
-
-            params = SpgdParams(**_parse_kv(args.spgd_param))
-            for e in range(args.episodes):
-                _, info = env.reset(seed=seed * 1000 + e)
-                ctl = SpgdPid(
-                    stage, params, setpoints_fs=info["setpoints_fs"], seed=seed * 1000 + e
-                )
-                for _ in range(args.steps):
-                    # absolute set-points, one measurement per command (as rollout_spgd)
-                    r = env.step_setpoints(ctl.command())
-                    ctl.observe(float(r.power[0]))
+        if subject.controller is not None:
+            nominal = subject.nominal_config(split, args.steps)
+            controller_episodes(
+                env,
+                subject.controller,
+                subject.controller_params,
+                nominal,
+                args.episodes,
+                args.steps,
+                seed,
+            )
         else:
-            from .evaluate import load_for_evaluation
-
-            loaded, _ = load_for_evaluation(args.model, stage)
             for e in range(args.episodes):
-                obs, _ = env.reset(seed=seed * 1000 + e)
+                obs, _ = env.reset(seed=episode_seed(seed, e))
                 for _ in range(args.steps):
-                    action = np.asarray(loaded.predict(obs[None, :]))[0]
+                    action = np.asarray(subject.policy.predict(obs[None, :]))[0]
                     obs, _, _, _, _ = env.step(action)
     finally:
         env.close()

@@ -6,13 +6,12 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
-from .config import make_config
-from .observation import ObservationSpec, build_observation
+from .env_setup import ACTION_TYPES, config_arguments, env_setup
+from .observation import build_observation
 from .simulation import BatchedSimulation, StepResult
 
-ACTION_TYPES = ("increment", "absolute")
+__all__ = ["ACTION_TYPES", "OpsEnv"]
 
 
 class OpsEnv(gym.Env):
@@ -47,27 +46,26 @@ class OpsEnv(gym.Env):
         **overrides: Any,
     ) -> None:
         super().__init__()
-        if action_type not in ACTION_TYPES:
-            raise ValueError(
-                f"action_type must be one of {', '.join(ACTION_TYPES)} (got {action_type!r})"
-            )
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of None, human, rgb_array (got {render_mode!r})"
             )
-        self.config = make_config(
-            stage=stage, mode=mode, split=split, episode_steps=max_episode_steps, **overrides
+        setup = env_setup(
+            stage, mode, split, action_type, max_episode_steps, observation_options, overrides
         )
-        self.stage = self.config.stage
-        self.action_type = action_type
+        setup.apply_to(self)
+        self.observation_space = setup.observation_space
+        self.action_space = setup.action_space
         self.render_mode = render_mode
-        self.obs_spec = ObservationSpec.from_config(self.config, **(observation_options or {}))
-        self.observation_space = self.obs_spec.space()
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(self.stage,), dtype=np.float32)
         self.sim = BatchedSimulation(self.config, num_envs=1, seed=None)
         self._abs_scale = self.config.absolute_action_range_fs
         self._last: StepResult | None = None
         self._viewer = None
+
+    @classmethod
+    def from_config(cls, config, **kwargs: Any) -> OpsEnv:
+        """An env running ``config`` (an OpsConfig); ``max_episode_steps`` may be given."""
+        return cls(**config_arguments(config, kwargs.pop("max_episode_steps", None)), **kwargs)
 
     @property
     def optical_period_fs(self) -> float:
@@ -104,6 +102,14 @@ class OpsEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return obs, info
+
+    def step_setpoints(self, setpoints_fs) -> StepResult:
+        """One step to absolute set-points (fs, one per stage), as the simulator node takes a
+        delay command; returns the simulation's step result (batched by 1)."""
+        if self._last is None:
+            raise RuntimeError("call reset() before step_setpoints()")
+        self._last = self.sim.step_setpoints(np.asarray(setpoints_fs, dtype=np.float64)[None, :])
+        return self._last
 
     def step(self, action):
         if self._last is None:

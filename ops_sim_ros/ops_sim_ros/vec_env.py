@@ -21,13 +21,11 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .config import make_config
-from .env import ACTION_TYPES
-from .observation import ObservationSpec, build_observation
+from .env_setup import config_arguments, env_setup
+from .observation import build_observation
 from .simulation import BatchedSimulation, StepResult
 
 
@@ -46,20 +44,20 @@ class _BatchCore:
         observation_options,
         overrides,
     ) -> None:
-        if action_type not in ACTION_TYPES:
-            raise ValueError(
-                f"action_type must be one of {', '.join(ACTION_TYPES)} (got {action_type!r})"
-            )
-        self.config = make_config(
-            stage=stage, mode=mode, split=split, episode_steps=max_episode_steps, **overrides
+        setup = env_setup(
+            stage, mode, split, action_type, max_episode_steps, observation_options, overrides
         )
-        self.stage = self.config.stage
-        self.action_type = action_type
-        self.obs_spec = ObservationSpec.from_config(self.config, **(observation_options or {}))
-        self.single_observation_space = self.obs_spec.space()
-        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(self.stage,), dtype=np.float32)
+        setup.apply_to(self)
+        self.single_observation_space = setup.observation_space
+        self.single_action_space = setup.action_space
         self.sim = BatchedSimulation(self.config, num_envs=num_envs, seed=seed)
         self._abs_scale = self.config.absolute_action_range_fs
+
+    @classmethod
+    def from_config(cls, config, num_envs: int = 8, **kwargs: Any):
+        """``num_envs`` envs running ``config`` (an OpsConfig)."""
+        steps = kwargs.pop("max_episode_steps", None)
+        return cls(num_envs=num_envs, **config_arguments(config, steps), **kwargs)
 
     def _apply(self, actions) -> StepResult:
         if self.action_type == "increment":

@@ -1,0 +1,92 @@
+"""Episodes of a controller against the in-process simulator: the one rollout loop of each kind.
+
+* :func:`controller_episodes` drives any controller of :mod:`ops_controller_ros.controllers`
+  (SPGD-PID, the tracker, ...) exactly as its node drives the simulator: absolute set-points, one
+  reading (P_N / P_max and the detected slot energies) per command. Used by ``evaluate
+  --controller``, ``evaluate --record`` and ``scripts/spgd_baseline.py``.
+* :func:`rollout_policy` runs a learned policy's batched ``predict`` on a vector env.
+
+The controller is built from a *nominal* configuration; the simulator may run another one
+(``evaluate --env KEY=VALUE``): the controller is not told.
+
+Both return ``power`` (episodes, steps + 1): P_N/P_max after reset and after each step, and
+``returns`` (episodes,): the sum of rewards.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def episode_seed(seed: int, episode: int) -> int:
+    """The seed of episode ``episode`` of evaluation seed ``seed`` (simulator and controller)."""
+    return seed * 1000 + episode
+
+
+def controller_episodes(
+    env, controller: str, params: dict[str, Any], nominal, episodes: int, steps: int, seed: int
+) -> dict[str, np.ndarray]:
+    """``episodes`` episodes of ``controller`` on ``env`` (an OpsEnv, or a wrapper with
+    ``reset(seed=)`` and ``step_setpoints(setpoints_fs) -> StepResult``)."""
+    from ops_controller_ros.controllers import make_controller
+
+    power = np.empty((episodes, steps + 1))
+    returns = np.zeros(episodes)
+    for e in range(episodes):
+        s = episode_seed(seed, e)
+        _, info = env.reset(seed=s)
+        ctl = make_controller(
+            controller, nominal, params, setpoints_fs=info["setpoints_fs"], seed=s
+        )
+        power[e, 0] = info["power"]
+        for t in range(steps):
+            r = env.step_setpoints(ctl.command())
+            p = float(r.power[0])
+            ctl.observe(p, r.pulse_energies[0])
+            power[e, t + 1] = p
+            returns[e] += float(r.reward[0])
+    return {"power": power, "returns": returns}
+
+
+def rollout_controller(
+    controller: str,
+    params: dict[str, Any],
+    nominal,
+    sim_config,
+    episodes: int,
+    steps: int,
+    seed: int,
+) -> dict[str, np.ndarray]:
+    """:func:`controller_episodes` on a fresh in-process env running ``sim_config``."""
+    from ops_sim_ros.env import OpsEnv
+
+    env = OpsEnv.from_config(sim_config, max_episode_steps=steps)
+    try:
+        return controller_episodes(env, controller, params, nominal, episodes, steps, seed)
+    finally:
+        env.close()
+
+
+def rollout_policy(
+    predict, sim_config, episodes: int, steps: int, seed: int
+) -> dict[str, np.ndarray]:
+    """``episodes`` parallel episodes on ``sim_config`` with a batched ``predict(obs)``."""
+    from ops_sim_ros.vec_env import OpsVectorEnv
+
+    env = OpsVectorEnv.from_config(sim_config, num_envs=episodes, max_episode_steps=steps)
+    try:
+        obs, info = env.reset(seed=seed)
+        power = np.empty((episodes, steps + 1))
+        power[:, 0] = np.asarray(info["power"], dtype=np.float64)
+        returns = np.zeros(episodes)
+        for t in range(steps):
+            obs, rewards, _, _, info = env.step(predict(obs))
+            returns += rewards
+            final = info.get("final_info") if t == steps - 1 else None
+            source = final if final is not None and "power" in final else info
+            power[:, t + 1] = np.asarray(source["power"], dtype=np.float64)
+        return {"power": power, "returns": returns}
+    finally:
+        env.close()
