@@ -34,6 +34,7 @@ setup(
             "train = ops_gym_bridge.train:main",
             "evaluate = ops_gym_bridge.evaluate:main",
             "benchmark = ops_gym_bridge.benchmark:main",
+            "report = ops_gym_bridge.report:main",
         ],
     },
 )

@@ -1,246 +1,515 @@
-"""``ros2 run ops_gym_bridge benchmark``: the paper's benchmark grid (algorithms x modes at a stage,
-several seeds), by running ``train`` and ``evaluate`` for every cell, then a markdown table.
+"""``ros2 run ops_gym_bridge benchmark``: the paper's benchmark (section 3, Table 1, Figures 7-11
+and 17), as a set of independent runs, in parallel, resumable.
 
-Resumable: each run lives in ``OUT/<algo>_<mode>_s<seed>/``; a run whose model has all its steps
-and an evaluation is skipped, an interrupted one continues with ``train --resume``. Ctrl-C stops
-the grid after saving the current model; run the same command again to go on.
+Profiles (``--profile``):
 
-The paper's grid (section 3, Table 1): stage 5, PPO / TD3 / SAC, easy / medium / hard, ten seeds,
-evaluated on the training and the testing environment. ``--quick`` is a small configuration
-(stage 2, SAC and TD3, easy, one seed, 3000 steps) to check the pipeline in a few minutes.
+* ``paper``: N = 5, easy / medium / hard, PPO / TD3 / SAC with the paper's hyper-parameters
+  (``hyperparams/*.yaml``) and 300,000 training steps, 10 seeds; hard mode at N = 1...6 for TD3
+  and SAC (Figures 9 and 10). Hundreds of core-hours: use ``--ray-address`` on a cluster.
+* ``quick``: the same protocol with 3 seeds and the budgets this 2-core machine finishes in a few
+  hours (:data:`PROFILES`); Figures 9 / 10 with one seed per extra N.
+* ``smoke``: seconds, for the tests (N = 2, tiny budgets and networks).
+
+Every profile also evaluates each no-training controller of
+:data:`ops_controller_ros.controllers.CONTROLLERS` (SPGD-PID, ...) in the same protocol.
+
+Each run executes in its own process (``python -m ops_gym_bridge.bench_worker``, torch on one
+thread): ``--jobs`` at once on this machine (default: one per core), or as Ray tasks of one CPU each
+with ``--ray-address`` (``auto``, ``HOST:PORT`` or ``local``: a local Ray instance). A finished run
+is stored at once and atomically in ``OUT/runs/<id>/``; ``OUT/work/<id>/`` holds runs in progress.
+Running the same command again skips every stored run and resumes the others from their last save.
+SIGINT (Ctrl-C) or SIGTERM stops every run in progress, each saving its model, and exits with 130.
+``ros2 run ops_gym_bridge report OUT --out DIR`` turns stored runs into Table 1 and the figures.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
+import os
+import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from ops_controller_ros.controllers import CONTROLLERS
+from ops_sim_ros.config import DETECTORS, MODES
 
-ALGOS = ("ppo", "td3", "sac")
-MODES = ("easy", "medium", "hard")
-QUICK = {
-    "stage": 2,
-    "algos": ["sac", "td3"],
-    "modes": ["easy"],
-    "seeds": [1],
-    "timesteps": 3000,
-    "eval_seeds": [0, 1],
-    "eval_episodes": 3,
+from . import cli_args
+from .bench_worker import EXIT_INTERRUPTED, read_json, write_json
+from .hyperparams import ALGOS
+
+PAPER_MODES = ("easy", "medium", "hard")
+PAPER_STEPS = 300_000
+
+#: The profiles. ``timesteps`` per algorithm; ``stage_runs``: the extra hard-mode stages of
+#: Figures 9 and 10 (algorithms, stages, seeds); ``traces``: the (algo, mode) runs whose testing
+#: episode traces are kept (Figure 17).
+PROFILES: dict[str, dict[str, Any]] = {
+    "paper": {
+        "stage": 5,
+        "modes": list(PAPER_MODES),
+        "algos": list(ALGOS),
+        "seeds": list(range(10)),
+        "timesteps": {a: PAPER_STEPS for a in ALGOS},
+        "episode_steps": 200,
+        "eval": {"seeds": [0, 1, 2, 3, 4], "episodes": 5, "steps": 200},
+        "stage_runs": {
+            "algos": ["td3", "sac"],
+            "stages": [1, 2, 3, 4, 6],
+            "seeds": list(range(10)),
+        },
+        "traces": [("td3", "hard")],
+        "hyperparams": {},
+    },
+    "quick": {
+        "stage": 5,
+        "modes": list(PAPER_MODES),
+        "algos": list(ALGOS),
+        "seeds": [0, 1, 2],
+        "timesteps": {"ppo": 300_000, "td3": 50_000, "sac": 50_000},
+        "episode_steps": 200,
+        "eval": {"seeds": [0, 1, 2, 3, 4], "episodes": 5, "steps": 200},
+        "stage_runs": {"algos": ["td3", "sac"], "stages": [1, 2, 3, 4, 6], "seeds": [0]},
+        "traces": [("td3", "hard")],
+        "hyperparams": {},
+    },
+    "smoke": {
+        "stage": 2,
+        "modes": list(PAPER_MODES),
+        "algos": list(ALGOS),
+        "seeds": [0],
+        "timesteps": {a: 300 for a in ALGOS},
+        "episode_steps": 50,
+        "eval": {"seeds": [0], "episodes": 2, "steps": 50},
+        "stage_runs": {"algos": ["td3", "sac"], "stages": [1], "seeds": [0]},
+        "traces": [("td3", "hard")],
+        "hyperparams": {
+            "ppo": ["n_steps=64", "batch_size=32", "net_arch=[16,16]"],
+            "td3": ["learning_starts=100", "batch_size=32", "net_arch=[16,16]"],
+            "sac": ["learning_starts=100", "batch_size=32", "net_arch=[16,16]"],
+        },
+    },
 }
+#: Rough seconds per training step at N = 5 on one core (measured, torch 2.13, SB3 2.7), for the
+#: time-left estimate until this session has measured its own.
+PRIOR_S_PER_STEP = {"ppo": 0.0012, "td3": 0.009, "sac": 0.014}
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="ros2 run ops_gym_bridge benchmark",
-        description="Run the benchmark grid (train + evaluate) and write a markdown table.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+def run_id(kind: str, name: str, stage: int, mode: str, seed: int | None) -> str:
+    return f"n{stage}_{mode}_{name}" + ("" if seed is None else f"_s{seed}")
+
+
+def plan(args) -> list[dict[str, Any]]:
+    """The runs of the benchmark, cheapest and most informative first: the controllers, then
+    every (mode, algo) cell for seed 0, then seed 1, ...; the extra stages last."""
+    prof = PROFILES[args.profile]
+    common = {
+        "detector": args.detector,
+        "episode_steps": prof["episode_steps"],
+        "eval": prof["eval"],
+        "save_every": args.save_every,
+    }
+    modes = args.modes or prof["modes"]
+    algos = args.algos or prof["algos"]
+    seeds = prof["seeds"] if args.seeds is None else args.seeds
+    stage = prof["stage"]
+    specs: list[dict[str, Any]] = []
+    for name in args.controllers if args.controllers is not None else CONTROLLERS:
+        for mode in modes:
+            specs.append(
+                {
+                    **common,
+                    "id": run_id("controller", name, stage, mode, None),
+                    "kind": "controller",
+                    "controller": name,
+                    "stage": stage,
+                    "mode": mode,
+                    "seed": None,
+                    "transfer_modes": list(modes),
+                }
+            )
+
+    def train_spec(algo, st, mode, seed, traces):
+        steps = args.timesteps or prof["timesteps"][algo]
+        return {
+            **common,
+            "id": run_id("train", algo, st, mode, seed),
+            "kind": "train",
+            "algo": algo,
+            "stage": st,
+            "mode": mode,
+            "seed": seed,
+            "timesteps": int(steps),
+            "hyperparams": list(prof["hyperparams"].get(algo, [])) + list(args.hyperparams),
+            "transfer_modes": list(modes) if st == stage else [],
+            "traces": traces,
+        }
+
+    for seed in seeds:
+        for mode in modes:
+            for algo in sorted(algos, key=lambda a: PRIOR_S_PER_STEP.get(a, 0.01)):
+                traces = (algo, mode) in [tuple(t) for t in prof["traces"]]
+                specs.append(train_spec(algo, stage, mode, seed, traces))
+    extra = prof["stage_runs"]
+    stages = extra["stages"] if args.extra_stages is None else args.extra_stages
+    if "hard" in modes:
+        for seed in extra["seeds"] if args.seeds is None else args.seeds:
+            for st in stages:
+                for algo in extra["algos"]:
+                    if algo in algos and st != stage:
+                        specs.append(train_spec(algo, st, "hard", seed, False))
+    return specs
+
+
+# ------------------------------------------------------------------------------ execution
+def worker_command(spec_path: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "ops_gym_bridge.bench_worker", str(spec_path), str(out)]
+
+
+@dataclass
+class Progress:
+    """Runs done / total and an estimate of the time left."""
+
+    total: int
+    jobs: int
+    done: int = 0
+    t0: float = field(default_factory=time.monotonic)
+    rates: dict[str, list[float]] = field(default_factory=dict)
+
+    def cost(self, spec: dict, out: Path) -> float:
+        if spec["kind"] != "train":
+            return 5.0
+        algo = spec["algo"]
+        r = self.rates.get(algo)
+        per_step = (sum(r) / len(r)) if r else PRIOR_S_PER_STEP.get(algo, 0.01)
+        per_step *= max(spec["stage"], 1) / 5 if not r else 1.0
+        prog = read_json(out / "work" / spec["id"] / "progress.json") or {}
+        left = spec["timesteps"] - int(prog.get("timesteps", 0))
+        return per_step * max(left, 0) + 10.0
+
+    def learn(self, record: dict) -> None:
+        spec = record["spec"]
+        if spec["kind"] == "train" and record.get("train_wall_s") and spec["stage"] == 5:
+            self.rates.setdefault(spec["algo"], []).append(
+                record["train_wall_s"] / max(record["timesteps"], 1)
+            )
+
+    def line(self, remaining: list[dict], out: Path) -> str:
+        left = sum(self.cost(s, out) for s in remaining) / max(self.jobs, 1)
+        el = time.monotonic() - self.t0
+        return (
+            f"[benchmark] {self.done}/{self.total} runs done; elapsed {_hms(el)}; "
+            f"time left ~{_hms(left)}"
+        )
+
+
+def _hms(s: float) -> str:
+    s = int(s)
+    return f"{s // 3600}h{(s % 3600) // 60:02d}m{s % 60:02d}s"
+
+
+class Stop(Exception):
+    """SIGINT / SIGTERM reached the benchmark."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_stop(signum, frame):
+    raise Stop(signum)
+
+
+class LocalPool:
+    """``jobs`` worker processes at a time, each in its own session (the benchmark forwards the
+    stop signal itself, exactly once)."""
+
+    def __init__(self, jobs: int, out: Path, log_dir: Path):
+        self.jobs, self.out, self.log_dir = jobs, out, log_dir
+        self.running: dict[str, tuple[subprocess.Popen, Any]] = {}
+
+    def free(self) -> bool:
+        return len(self.running) < self.jobs
+
+    def submit(self, spec: dict, spec_path: Path) -> None:
+        log = open(self.log_dir / f"{spec['id']}.log", "a")  # noqa: SIM115 (closed in poll)
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+        proc = subprocess.Popen(
+            worker_command(spec_path, self.out),
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            env=env,
+        )
+        self.running[spec["id"]] = (proc, log)
+
+    def poll(self, timeout: float) -> list[tuple[str, int]]:
+        deadline = time.monotonic() + timeout
+        while True:
+            finished = []
+            for rid, (proc, log) in list(self.running.items()):
+                code = proc.poll()
+                if code is not None:
+                    log.close()
+                    del self.running[rid]
+                    finished.append((rid, code))
+            if finished or time.monotonic() >= deadline or not self.running:
+                return finished
+            time.sleep(0.2)
+
+    def stop(self, grace_s: float) -> None:
+        for proc, _ in self.running.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + grace_s
+        for proc, log in self.running.values():
+            try:
+                proc.wait(max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            log.close()
+        self.running.clear()
+
+
+def _ray_run_worker(cmd: list[str], log_path: str) -> int:
+    """Body of the Ray task: the worker as a subprocess; a cancelled task stops it cleanly."""
+    with open(log_path, "a") as log:
+        proc = subprocess.Popen(
+            cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )  # fmt: skip
+        try:
+            return proc.wait()
+        except KeyboardInterrupt:  # ray.cancel
+            proc.send_signal(signal.SIGTERM)
+            return proc.wait()
+
+
+class RayPool:
+    """Runs as Ray tasks of one CPU each. ``OUT`` must be on a file system every node sees."""
+
+    def __init__(self, address: str, jobs: int, out: Path, log_dir: Path):
+        import ray
+
+        self.ray = ray
+        if address == "local":
+            ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=address, log_to_driver=False)
+        self.jobs = max(int(ray.cluster_resources().get("CPU", jobs)), 1)
+        self.task = ray.remote(num_cpus=1, max_retries=0)(_ray_run_worker)
+        self.out, self.log_dir = out, log_dir
+        self.running: dict[Any, str] = {}
+
+    def free(self) -> bool:
+        return len(self.running) < self.jobs
+
+    def submit(self, spec: dict, spec_path: Path) -> None:
+        cmd = worker_command(spec_path.resolve(), self.out.resolve())
+        ref = self.task.remote(cmd, str((self.log_dir / f"{spec['id']}.log").resolve()))
+        self.running[ref] = spec["id"]
+
+    def poll(self, timeout: float) -> list[tuple[str, int]]:
+        if not self.running:
+            return []
+        ready, _ = self.ray.wait(list(self.running), num_returns=1, timeout=timeout)
+        out = []
+        for ref in ready:
+            rid = self.running.pop(ref)
+            try:
+                out.append((rid, int(self.ray.get(ref))))
+            except Exception:  # a task that died
+                out.append((rid, 1))
+        return out
+
+    def stop(self, grace_s: float) -> None:
+        for ref in self.running:
+            self.ray.cancel(ref, force=False)
+        self.ray.wait(list(self.running), num_returns=len(self.running), timeout=grace_s)
+        self.running.clear()
+        self.ray.shutdown()
+
+
+def execute(args, specs: list[dict], out: Path) -> int:
+    (out / "specs").mkdir(parents=True, exist_ok=True)
+    (out / "logs").mkdir(exist_ok=True)
+    stored = {s["id"] for s in specs if (out / "runs" / s["id"] / "run.json").exists()}
+    todo = [s for s in specs if s["id"] not in stored]
+    if args.ray_address:
+        pool = RayPool(args.ray_address, args.jobs, out, out / "logs")
+    else:
+        pool = LocalPool(args.jobs, out, out / "logs")
+    prog = Progress(total=len(specs), jobs=pool.jobs, done=len(stored))
+    for rid in sorted(stored):
+        rec = read_json(out / "runs" / rid / "run.json")
+        if rec:
+            prog.learn(rec)
+    print(
+        f"[benchmark] {len(specs)} runs in the plan, {len(stored)} already stored in "
+        f"{out / 'runs'}; {len(todo)} to run, {pool.jobs} at a time"
+        + (f" on Ray ({args.ray_address})" if args.ray_address else ""),
+        flush=True,
     )
-    p.add_argument("--stage", type=int, default=5)
-    p.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS))
-    p.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
+    by_id = {s["id"]: s for s in specs}
+    queue = list(todo)
+    failed: list[str] = []
+    last_line = time.monotonic()
+    old = {s: signal.signal(s, _raise_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        while queue or pool.running:
+            while queue and pool.free():
+                spec = queue.pop(0)
+                path = out / "specs" / f"{spec['id']}.json"
+                write_json(path, spec)
+                resumed = (out / "work" / spec["id"] / "model.zip").exists()
+                print(
+                    f"[benchmark] start {spec['id']}" + (" (resuming)" if resumed else ""),
+                    flush=True,
+                )
+                pool.submit(spec, path)
+            for rid, code in pool.poll(timeout=1.0):
+                rec = read_json(out / "runs" / rid / "run.json")
+                if code == 0 and rec:
+                    prog.done += 1
+                    prog.learn(rec)
+                    fp = rec["final_power"]
+                    print(
+                        f"[benchmark] done {rid}: final P_N/P_max train {fp['train']:.4f}, "
+                        f"test {fp['test']:.4f} ({rec['wall_s']:.0f} s)",
+                        flush=True,
+                    )
+                else:
+                    failed.append(rid)
+                    print(
+                        f"[benchmark] FAILED {rid} (exit {code}); see {out / 'logs' / rid}.log",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                remaining = queue + [by_id[r] for r in _running_ids(pool)]
+                print(prog.line(remaining, out), flush=True)
+                last_line = time.monotonic()
+            if time.monotonic() - last_line > args.status_every:
+                remaining = queue + [by_id[r] for r in _running_ids(pool)]
+                print(prog.line(remaining, out), flush=True)
+                last_line = time.monotonic()
+    except Stop as stop:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        running = list(_running_ids(pool))
+        print(
+            f"\n[benchmark] {stop}: stopping {len(running)} run(s) in progress "
+            f"({', '.join(running) or 'none'}); each saves its model",
+            file=sys.stderr,
+            flush=True,
+        )
+        pool.stop(args.grace)
+        print(
+            f"[benchmark] stopped with {prog.done}/{prog.total} runs stored; run the same "
+            "command again to resume",
+            file=sys.stderr,
+            flush=True,
+        )
+        return EXIT_INTERRUPTED
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    if args.ray_address:
+        pool.ray.shutdown()
+    print(f"[benchmark] finished: {prog.done}/{prog.total} runs stored in {out / 'runs'}")
+    if failed:
+        print(f"[benchmark] {len(failed)} run(s) failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _running_ids(pool) -> list[str]:
+    if isinstance(pool, LocalPool):
+        return list(pool.running)
+    return list(pool.running.values())
+
+
+# ------------------------------------------------------------------------------ CLI
+def build_parser():
+    p = cli_args.make_parser(
+        "benchmark", "The paper's benchmark (Table 1, Figures 7-11, 17): runs, stored, resumable."
+    )
+    p.add_argument("--profile", choices=tuple(PROFILES), default="quick", help="protocol size")
+    cli_args.add_env_arguments(
+        p,
+        defaults={"detector": "polarizer", "mode": list(PAPER_MODES)},
+        several=("mode",),
+        include=("mode", "detector"),
+    )
+    p.add_argument("--algos", nargs="+", choices=ALGOS, help="(default: the profile's)")
+    p.add_argument("--seeds", type=int, nargs="+", help="training seeds (default: the profile's)")
     p.add_argument(
-        "--seeds",
+        "--controllers",
+        nargs="*",
+        choices=CONTROLLERS,
+        help="no-training controllers to evaluate (default: every registered one)",
+    )
+    p.add_argument(
+        "--extra-stages",
         type=int,
-        nargs="+",
-        default=list(range(10)),
-        help="training seeds (the paper uses ten)",
+        nargs="*",
+        help="hard-mode stages besides the profile's for Figures 9/10 (default: the profile's)",
     )
-    p.add_argument("--timesteps", type=int, default=300_000, help="training steps per run")
-    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
-    p.add_argument("--eval-episodes", type=int, default=5)
+    p.add_argument("--timesteps", type=int, help="training steps of every run (overrides)")
+    cli_args.add_key_value_argument(
+        p, "--hyperparams", help="overrides passed to every training run"
+    )
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs at once")
     p.add_argument(
-        "--hyperparams",
-        nargs="+",
-        action="extend",
-        default=[],
-        metavar="KEY=VALUE",
-        help="overrides passed to every training run",
+        "--ray-address",
+        help="run on Ray: auto, HOST:PORT, or local (start a local instance with --jobs CPUs)",
     )
-    p.add_argument("--n-envs", type=int, default=1)
-    p.add_argument("--out", default="runs/benchmark", help="directory of the runs and the table")
-    p.add_argument(
-        "--quick",
-        action="store_true",
-        help="small grid: " + ", ".join(f"{k}={v}" for k, v in QUICK.items()),
-    )
-    p.add_argument("--progress", action="store_true", help="show each run's progress bar")
+    p.add_argument("--out", default="runs/benchmark", help="directory of the stored runs")
+    p.add_argument("--save-every", type=int, default=10_000, help="steps between saves of a run")
+    p.add_argument("--status-every", type=float, default=300.0, help="seconds between lines")
+    p.add_argument("--grace", type=float, default=120.0, help="seconds a stopped run may save")
+    p.add_argument("--list", action="store_true", help="print the plan and exit")
     return p
 
 
-def _cli(module: str) -> list[str]:
-    return [sys.executable, "-m", f"ops_gym_bridge.{module}"]
-
-
-def _run_child(cmd: list[str]) -> int:
-    """Run a CLI to completion. On Ctrl-C (which reaches the child too) let it save and exit."""
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
-    try:
-        return proc.wait()
-    except KeyboardInterrupt:
-        try:
-            proc.wait(120)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        raise
-
-
-def _read_json(path: Path) -> dict | None:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-
-
-def run_cell(args, algo: str, mode: str, seed: int, out: Path, log) -> dict[str, Any]:
-    """Train (or resume) and evaluate one run; returns its record."""
-    run_dir = out / f"{algo}_{mode}_s{seed}"
-    meta = _read_json(run_dir / "metadata.json") if (run_dir / "model.zip").exists() else None
-    done_steps = int(meta["timesteps"]) if meta else 0
-    if done_steps < args.timesteps:
-        cmd = [
-            *_cli("train"),
-            "--algo",
-            algo,
-            "--stage",
-            str(args.stage),
-            "--mode",
-            mode,
-            "--seed",
-            str(seed),
-            "--out",
-            str(run_dir),
-            "--n-envs",
-            str(args.n_envs),
-        ]
-        if meta:
-            cmd += ["--resume", "--timesteps", str(args.timesteps - done_steps)]
-            log(f"resuming at step {done_steps}")
-        else:
-            cmd += ["--timesteps", str(args.timesteps)]
-        if args.hyperparams:
-            cmd += ["--hyperparams", *args.hyperparams]
-        if not args.progress:
-            cmd.append("--no-progress")
-        code = _run_child(cmd)
-        if code == 130:
-            raise KeyboardInterrupt
-        if code != 0:
-            raise RuntimeError(f"training failed ({code}): {' '.join(cmd)}")
-        meta = _read_json(run_dir / "metadata.json")
-        (run_dir / "eval" / "evaluation.json").unlink(missing_ok=True)
-    evaluation = _read_json(run_dir / "eval" / "evaluation.json")
-    if evaluation is None:
-        cmd = [
-            *_cli("evaluate"),
-            str(run_dir),
-            "--seeds",
-            *map(str, args.eval_seeds),
-            "--episodes",
-            str(args.eval_episodes),
-            "--quiet",
-        ]
-        code = _run_child(cmd)
-        if code != 0:
-            raise RuntimeError(f"evaluation failed ({code}): {' '.join(cmd)}")
-        evaluation = _read_json(run_dir / "eval" / "evaluation.json")
-    train_wall = sum(h.get("wall_s", 0.0) for h in meta.get("history", []))
-    return {
-        "algo": algo,
-        "mode": mode,
-        "seed": seed,
-        "timesteps": meta["timesteps"],
-        "train_wall_s": round(train_wall, 1),
-        "train_final_power": evaluation["splits"]["train"]["final_power_mean"],
-        "test_final_power": evaluation["splits"]["test"]["final_power_mean"],
-        "train_return": evaluation["splits"]["train"]["episode_return_mean"],
-        "test_return": evaluation["splits"]["test"]["episode_return_mean"],
-        "dir": str(run_dir),
-    }
-
-
-def table(records: list[dict], args) -> str:
-    lines = [
-        f"Stage {args.stage}, {args.timesteps} training steps per run, final P_N/P_max after "
-        f"200 steps (mean ± std over training seeds; each seed evaluated on "
-        f"{len(args.eval_seeds)} seeds x {args.eval_episodes} episodes).",
-        "",
-        "| algo | mode | seeds | train env P_N | test env P_N | test episode return | "
-        "train wall time / run |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for algo in args.algos:
-        for mode in args.modes:
-            rs = [r for r in records if r["algo"] == algo and r["mode"] == mode]
-            if not rs:
-                continue
-            tr = np.array([r["train_final_power"] for r in rs])
-            te = np.array([r["test_final_power"] for r in rs])
-            ret = np.array([r["test_return"] for r in rs])
-            wall = np.mean([r["train_wall_s"] for r in rs])
-            lines.append(
-                f"| {algo.upper()} | {mode} | {len(rs)} | {tr.mean():.4f} ± {tr.std():.4f} | "
-                f"{te.mean():.4f} ± {te.std():.4f} | {ret.mean():.2f} ± {ret.std():.2f} | "
-                f"{wall:.0f} s |"
-            )
-    return "\n".join(lines) + "\n"
-
-
 def run(argv: list[str] | None = None) -> int:
-    from .train import strip_ros_args
-
-    args = build_parser().parse_args(strip_ros_args(list(sys.argv[1:] if argv is None else argv)))
-    if args.quick:
-        for k, v in QUICK.items():
-            setattr(args, k, v)
+    args = cli_args.parse_args(build_parser(), argv)
+    if args.modes and any(m not in MODES for m in args.modes):
+        return 2
+    assert args.detector in DETECTORS
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cells = [(a, m, s) for a in args.algos for m in args.modes for s in args.seeds]
-    records: list[dict] = []
-    t0 = time.monotonic()
-    try:
-        for i, (algo, mode, seed) in enumerate(cells, 1):
-            prefix = f"[benchmark] ({i}/{len(cells)}) {algo} {mode} seed {seed}"
-
-            def log(msg, prefix=prefix):
-                print(f"{prefix}: {msg}", flush=True)
-
-            t = time.monotonic()
-            rec = run_cell(args, algo, mode, seed, out, log)
-            records.append(rec)
-            log(
-                f"test P_N/P_max {rec['test_final_power']:.4f}, train P_N/P_max "
-                f"{rec['train_final_power']:.4f} (training {rec['train_wall_s']:.0f} s; this "
-                f"cell {time.monotonic() - t:.0f} s; elapsed {time.monotonic() - t0:.0f} s)"
-            )
-    except KeyboardInterrupt:
+    specs = plan(args)
+    if args.list:
+        for s in specs:
+            steps = f" {s['timesteps']} steps" if s["kind"] == "train" else ""
+            print(f"{s['id']}{steps}")
+        return 0
+    settings = {
+        "profile": args.profile,
+        "detector": args.detector,
+        "profile_settings": PROFILES[args.profile],
+        "command_line": ["ros2", "run", "ops_gym_bridge", "benchmark", *(argv or sys.argv[1:])],
+    }
+    previous = read_json(out / "benchmark.json")
+    if previous and previous.get("detector") != args.detector:
         print(
-            f"\n[benchmark] interrupted after {len(records)}/{len(cells)} runs; run the same "
-            "command again to continue",
+            f"[benchmark] error: {out} holds runs with --detector {previous['detector']}",
             file=sys.stderr,
         )
-        return 130
-    except RuntimeError as exc:
-        print(f"[benchmark] error: {exc}", file=sys.stderr)
-        return 1
-    text = table(records, args)
-    (out / "results.md").write_text(text)
-    (out / "results.json").write_text(json.dumps(records, indent=2) + "\n")
-    print(text)
-    print(f"[benchmark] wrote {out / 'results.md'} and {out / 'results.json'}")
-    return 0
+        return 2
+    write_json(out / "benchmark.json", settings)
+    return execute(args, specs, out)
 
 
 def main(argv: list[str] | None = None) -> None:
     try:
         code = run(argv)
     except KeyboardInterrupt:
-        code = 130
+        code = EXIT_INTERRUPTED
     sys.exit(code)
 
 
