@@ -48,7 +48,9 @@ def make_single_env(
     raise ValueError(f"backend must be one of {', '.join(BACKENDS)} (got {backend!r})")
 
 
-def _batched_vec_env(n_envs: int, stage: int, mode: str, split: str, episode_steps: int, seed):
+def _batched_vec_env(
+    n_envs: int, stage: int, mode: str, split: str, episode_steps: int, seed, overrides: dict
+):
     """ops_sim_ros's batched SB3 VecEnv (one physics call for all envs), if it is available."""
     try:
         from ops_sim_ros import vec_env as ops_vec_env
@@ -71,6 +73,7 @@ def _batched_vec_env(n_envs: int, stage: int, mode: str, split: str, episode_ste
             split=split,
             max_episode_steps=episode_steps,
             seed=seed,
+            **overrides,
         )
     return VecMonitor(venv, info_keywords=("power",))
 
@@ -86,11 +89,13 @@ def make_vec_env(
     timeout_s: float = 5.0,
     episode_steps: int = EPISODE_STEPS,
     batched: bool = True,
+    overrides: dict[str, Any] | None = None,
 ):
     """An SB3 VecEnv of ``n_envs`` monitored envs.
 
     In-process with ``n_envs > 1``: the batched vector env of ``ops_sim_ros.vec_env`` (falls back to
     a DummyVecEnv of ``OpsEnv`` if it is missing). ROS backend: one bridge per namespace.
+    ``overrides``: OpsConfig fields (e.g. ``detector``) of every env.
     """
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -117,6 +122,7 @@ def make_vec_env(
                         namespace=ns,
                         timeout_s=timeout_s,
                         episode_steps=episode_steps,
+                        overrides=overrides,
                     ),
                     info_keywords=("power",),
                 )
@@ -127,13 +133,20 @@ def make_vec_env(
     if backend != "inprocess":
         raise ValueError(f"backend must be one of {', '.join(BACKENDS)} (got {backend!r})")
     if n_envs > 1 and batched:
-        venv = _batched_vec_env(n_envs, stage, mode, split, episode_steps, seed)
+        venv = _batched_vec_env(n_envs, stage, mode, split, episode_steps, seed, overrides or {})
         if venv is not None:
             return venv
     fns = [
         (
             lambda: Monitor(
-                make_single_env("inprocess", stage, mode, split, episode_steps=episode_steps),
+                make_single_env(
+                    "inprocess",
+                    stage,
+                    mode,
+                    split,
+                    episode_steps=episode_steps,
+                    overrides=overrides,
+                ),
                 info_keywords=("power",),
             )
         )

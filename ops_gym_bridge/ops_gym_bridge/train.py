@@ -18,54 +18,37 @@ Ctrl-C (or SIGTERM) stops training, saves a usable model and metadata, and exits
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import datetime as _dt
 import signal
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from . import cli_args
 from . import hyperparams as hp
+from .cli_args import strip_ros_args  # noqa: F401  (kept importable from here)
 from .envs import BACKENDS, EPISODE_STEPS, final_powers, make_vec_env
 
-MODES = ("easy", "medium", "hard")
 EXIT_INTERRUPTED = 130
+#: What a model is: a resumed run keeps these (the command line may only repeat them).
+RUN_KEYS = ("algo", "stage", "mode", "split", "detector", "episode_steps", "n_envs")
 
 
-def strip_ros_args(argv: list[str]) -> list[str]:
-    """Drop ``--ros-args ... [--]`` that ``ros2 run`` users may append."""
-    out, skipping = [], False
-    for a in argv:
-        if a == "--ros-args":
-            skipping = True
-            continue
-        if skipping:
-            if a == "--":
-                skipping = False
-            continue
-        out.append(a)
-    return out
+class TrainError(RuntimeError):
+    """A run that cannot start; the message says why (exit code 2)."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="ros2 run ops_gym_bridge train",
-        description="Train a learned controller (stable-baselines3) for optical pulse stacking.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+def build_parser():
+    p = cli_args.make_parser(
+        "train", "Train a learned controller (stable-baselines3) for optical pulse stacking."
     )
     p.add_argument("--algo", choices=hp.ALGOS, default="sac", help="RL algorithm")
-    p.add_argument("--stage", type=int, default=5, help="number of stacking stages N")
-    p.add_argument("--mode", choices=MODES, default="medium", help="difficulty mode")
-    p.add_argument(
-        "--split",
-        choices=("train", "test"),
-        default="train",
-        help="noise variant to train on (the paper trains on 'train')",
-    )
+    cli_args.add_env_arguments(p)
     p.add_argument(
         "--timesteps",
         type=int,
@@ -81,13 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--n-envs", type=int, default=1, help="parallel environments")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument(
-        "--hyperparams",
-        nargs="+",
-        action="extend",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override defaults from hyperparams/<algo>.yaml (YAML values)",
+    cli_args.add_key_value_argument(
+        p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
     )
     p.add_argument(
         "--resume",
@@ -116,68 +94,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="torch CPU threads (small networks train fastest on 1; 0: torch default)",
     )
     return p
-
-
-class ProgressCallback:
-    """Progress bar (tqdm) with mean return and final P_N/P_max; logs rollout/final_power."""
-
-    def __new__(cls, *args, **kwargs):
-        from stable_baselines3.common.callbacks import BaseCallback
-
-        class _Progress(BaseCallback):
-            def __init__(self, total: int, enabled: bool):
-                super().__init__()
-                self.total = total
-                self.enabled = enabled
-                self.bar = None
-                self._last_post = 0.0
-                self._last_log = 0
-
-            def _on_training_start(self) -> None:
-                from tqdm import tqdm
-
-                start = self.model.num_timesteps
-                self.bar = tqdm(
-                    total=self.total,
-                    initial=start,
-                    unit="step",
-                    dynamic_ncols=True,
-                    disable=not self.enabled,
-                    smoothing=0.05,
-                    file=sys.stderr,
-                    mininterval=0.5,
-                )
-                self._seen = start
-
-            def _on_step(self) -> bool:
-                n = self.model.num_timesteps
-                if self.bar is not None:
-                    self.bar.update(n - self._seen)
-                self._seen = n
-                now = time.monotonic()
-                if now - self._last_post > 0.5:
-                    self._last_post = now
-                    buf = self.model.ep_info_buffer
-                    if buf:
-                        ret = float(np.mean([ep["r"] for ep in buf]))
-                        powers = final_powers(buf)
-                        post = {"return": f"{ret:.2f}"}
-                        if powers.size:
-                            post["P_N"] = f"{powers.mean():.3f}"
-                        if self.bar is not None:
-                            self.bar.set_postfix(post, refresh=False)
-                if n - self._last_log >= 1000:
-                    self._last_log = n
-                    powers = final_powers(self.model.ep_info_buffer or [])
-                    if powers.size:
-                        self.logger.record("rollout/final_power_mean", float(powers.mean()))
-                return True
-
-            def _on_training_end(self) -> None:
-                if self.bar is not None:
-                    self.bar.close()
-
-        return _Progress(*args, **kwargs)
 
 
 def _sigterm_to_interrupt(signum, frame):
@@ -220,7 +136,11 @@ def build_metadata(
     from ops_sim_ros import OpsEnv
 
     ref = OpsEnv(
-        stage=args.stage, mode=args.mode, split=args.split, max_episode_steps=args.episode_steps
+        stage=args.stage,
+        mode=args.mode,
+        split=args.split,
+        detector=args.detector,
+        max_episode_steps=args.episode_steps,
     )
     history = list((previous or {}).get("history", []))
     history.append(
@@ -238,6 +158,7 @@ def build_metadata(
         "stage": args.stage,
         "mode": args.mode,
         "split": args.split,
+        "detector": args.detector,
         "action_type": ref.action_type,
         "max_step_fs": float(ref.config.max_step_fs),
         "observation_spec": ref.obs_spec.to_dict(),
@@ -276,58 +197,68 @@ def _save(out: Path, args, params, model, venv, argv, wall_s, interrupted, previ
     )
 
 
-def _fail(message: str, code: int = 2) -> int:
-    print(f"[train] error: {message}", file=sys.stderr, flush=True)
-    return code
+@dataclass
+class TrainRun:
+    """One training run, filled step by step by :func:`run`."""
+
+    args: Any
+    command_line: list[str]
+    out: Path
+    params: dict
+    previous: dict | None = None
+    venv: Any = None
+    model: Any = None
+    start_steps: int = 0
 
 
-def run(argv: list[str] | None = None) -> int:
-    raw = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(strip_ros_args(raw))
-    command_line = ["ros2", "run", "ops_gym_bridge", "train", *raw]
+# ---------------------------------------------------------------------------------- steps
+def resolve_run(args, raw: list[str]) -> TrainRun:
+    """The hyper-parameters, and for ``--resume`` what the stored run fixes (TrainError)."""
+    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
+
     out = Path(args.out).expanduser().resolve()
-    previous = None
-
-    from ops_controller_ros.policy_io import PolicyLoadError, algo_class, read_metadata
-
-    if args.resume:
-        try:
-            previous = read_metadata(out)
-        except PolicyLoadError as exc:
-            return _fail(f"cannot resume from {out}: {exc}")
-        # The run being resumed fixes what the model is; the command line may only repeat it.
-        given = set(a.split("=")[0] for a in raw if a.startswith("--"))
-        for key in ("algo", "stage", "mode", "split", "episode_steps", "n_envs"):
-            flag = "--" + key.replace("_", "-")
-            if flag in given and getattr(args, key) != previous.get(key, getattr(args, key)):
-                return _fail(
-                    f"--resume: {flag} {getattr(args, key)} differs from the model's "
-                    f"{previous[key]} in {out}"
-                )
-            if key in previous:
-                setattr(args, key, previous[key])
-        if "--backend" not in given and previous.get("backend"):  # may change, if asked to
-            args.backend = previous["backend"]
-        params = hp.apply_overrides(
-            previous.get("hyperparams") or hp.load(args.algo), args.hyperparams, args.algo
-        )
-    else:
+    command_line = ["ros2", "run", "ops_gym_bridge", "train", *raw]
+    if args.timesteps < 0:
+        raise TrainError("--timesteps must be >= 0")
+    if not args.resume:
         if (out / "model.zip").exists():
-            return _fail(
+            raise TrainError(
                 f"{out} already holds a model; use --resume to continue it or choose another --out"
             )
-        try:
-            params = hp.apply_overrides(hp.load(args.algo), args.hyperparams, args.algo)
-        except ValueError as exc:
-            return _fail(str(exc))
-    if args.timesteps < 0:
-        return _fail("--timesteps must be >= 0")
+        params = _hyperparams(hp.load(args.algo), args)
+        return TrainRun(args, command_line, out, params)
+    try:
+        previous = read_metadata(out)
+    except PolicyLoadError as exc:
+        raise TrainError(f"cannot resume from {out}: {exc}") from None
+    given = {a.split("=")[0] for a in raw if a.startswith("--")}
+    for key in RUN_KEYS:
+        flag = "--" + key.replace("_", "-")
+        if flag in given and getattr(args, key) != previous.get(key, getattr(args, key)):
+            raise TrainError(
+                f"--resume: {flag} {getattr(args, key)} differs from the model's "
+                f"{previous[key]} in {out}"
+            )
+        default = (previous.get("config") or {}).get(key, getattr(args, key))
+        setattr(args, key, previous.get(key, default))
+    if "--backend" not in given and previous.get("backend"):  # may change, if asked to
+        args.backend = previous["backend"]
+    params = _hyperparams(previous.get("hyperparams") or hp.load(args.algo), args)
+    return TrainRun(args, command_line, out, params, previous)
 
-    import torch
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
-    from stable_baselines3.common.logger import configure
+
+def _hyperparams(base: dict, args) -> dict:
+    try:
+        return hp.apply_overrides(base, args.hyperparams, args.algo)
+    except ValueError as exc:
+        raise TrainError(str(exc)) from None
+
+
+def build_env(run: TrainRun) -> None:
+    """The (monitored, optionally normalized) vector env of the run."""
     from stable_baselines3.common.vec_env import VecNormalize
 
+    args = run.args
     try:
         venv = make_vec_env(
             args.backend,
@@ -339,18 +270,27 @@ def run(argv: list[str] | None = None) -> int:
             namespaces=args.namespace,
             timeout_s=args.ros_timeout,
             episode_steps=args.episode_steps,
+            overrides={"detector": args.detector},
         )
     except ValueError as exc:
-        return _fail(str(exc))
-    normalize = bool(params.get("normalize_obs", False))
-    if normalize:
-        vn_path = out / "vecnormalize.pkl"
+        raise TrainError(str(exc)) from None
+    if run.params.get("normalize_obs", False):
+        vn_path = run.out / "vecnormalize.pkl"
         if args.resume and vn_path.exists():
             venv = VecNormalize.load(str(vn_path), venv)
             venv.training = True
         else:
             venv = VecNormalize(venv, norm_obs=True, norm_reward=False, clip_obs=10.0)
+    run.venv = venv
 
+
+def build_model(run: TrainRun) -> None:
+    """A new model from the hyper-parameters, or the stored one for ``--resume``."""
+    import torch
+    from ops_controller_ros.policy_io import algo_class
+    from stable_baselines3.common.logger import configure
+
+    args, out = run.args, run.out
     if args.torch_threads > 0:
         torch.set_num_threads(args.torch_threads)
     out.mkdir(parents=True, exist_ok=True)
@@ -360,9 +300,8 @@ def run(argv: list[str] | None = None) -> int:
         if not source.exists():
             source = _latest_checkpoint(out)
             if source is None:
-                venv.close()
-                return _fail(f"nothing to resume in {out}: no model.zip and no checkpoint")
-        model = cls.load(str(source), env=venv, device=args.device)
+                raise TrainError(f"nothing to resume in {out}: no model.zip and no checkpoint")
+        model = cls.load(str(source), env=run.venv, device=args.device)
         rb = out / "replay_buffer.pkl"
         if hasattr(model, "replay_buffer") and rb.exists():
             model.load_replay_buffer(str(rb))
@@ -371,46 +310,44 @@ def run(argv: list[str] | None = None) -> int:
             flush=True,
         )
     else:
-        action_dim = int(np.prod(venv.action_space.shape))
+        action_dim = int(np.prod(run.venv.action_space.shape))
         try:
-            kwargs = hp.sb3_kwargs(args.algo, params, action_dim)
-            model = cls(env=venv, seed=args.seed, device=args.device, verbose=0, **kwargs)
+            kwargs = hp.sb3_kwargs(args.algo, run.params, action_dim)
+            model = cls(env=run.venv, seed=args.seed, device=args.device, verbose=0, **kwargs)
         except (TypeError, ValueError) as exc:
-            venv.close()
-            return _fail(f"invalid hyper-parameters for {args.algo}: {exc}")
+            raise TrainError(f"invalid hyper-parameters for {args.algo}: {exc}") from None
     model.set_logger(configure(str(out / "logs"), ["csv", "tensorboard"]))
+    run.model = model
+    run.start_steps = int(model.num_timesteps)
 
-    start_steps = int(model.num_timesteps)
-    total = start_steps + args.timesteps
-    ckpt_every = max(int(params.get("checkpoint_freq", 10000)) // max(args.n_envs, 1), 1)
-    (out / "checkpoints").mkdir(exist_ok=True)
-    callbacks = CallbackList(
-        [
-            ProgressCallback(total, enabled=not args.no_progress),
-            CheckpointCallback(
-                ckpt_every,
-                str(out / "checkpoints"),
-                name_prefix="model",
-                save_vecnormalize=normalize,
-            ),
-        ]
-    )
-    # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
-    ckpt_meta = build_metadata(args, params, model, venv, command_line, 0.0, False, previous)
+
+def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
+    """Train; on success, Ctrl-C / SIGTERM or an error after the first step, save the model.
+    Returns (interrupted, error, wall seconds)."""
     from ops_controller_ros.policy_io import save_metadata
 
-    save_metadata(out / "checkpoints", {**ckpt_meta, "checkpoint": True})
+    from .callbacks import training_callbacks
+
+    args, out, model = run.args, run.out, run.model
+    total = run.start_steps + args.timesteps
+    every = max(int(run.params.get("checkpoint_freq", 10000)) // max(args.n_envs, 1), 1)
+    normalize = bool(run.params.get("normalize_obs", False))
+    callbacks = training_callbacks(total, not args.no_progress, every, out, normalize)
+    # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
+    meta = build_metadata(
+        args, run.params, model, run.venv, run.command_line, 0.0, False, run.previous
+    )
+    save_metadata(out / "checkpoints", {**meta, "checkpoint": True})
 
     previous_handler = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
-    interrupted = False
+    interrupted, error = False, None
     t0 = time.monotonic()
     print(
         f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
-        f"backend={args.backend} n_envs={args.n_envs} steps {start_steps} -> {total}, "
-        f"out={out}",
+        f"detector={args.detector} backend={args.backend} n_envs={args.n_envs} "
+        f"steps {run.start_steps} -> {total}, out={out}",
         flush=True,
     )
-    error: BaseException | None = None
     try:
         model.learn(
             total_timesteps=args.timesteps,
@@ -426,33 +363,29 @@ def run(argv: list[str] | None = None) -> int:
         # A second Ctrl-C must not corrupt the model being written.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        bar = getattr(callbacks.callbacks[0], "bar", None)
-        if bar is not None:
-            bar.close()
+        callbacks.callbacks[0].close()
     wall = time.monotonic() - t0
-    # A run that failed before its first step (e.g. no simulator) has nothing worth saving.
-    saved = error is None or model.num_timesteps > start_steps
     try:
-        if saved:
+        # A run that failed before its first step (e.g. no simulator) has nothing worth saving.
+        if error is None or model.num_timesteps > run.start_steps:
+            failed = interrupted or error is not None
             _save(
-                out,
-                args,
-                params,
-                model,
-                venv,
-                command_line,
-                wall,
-                interrupted or error is not None,
-                previous,
+                out, args, run.params, model, run.venv, run.command_line, wall, failed, run.previous
             )
     finally:
         with contextlib.suppress(Exception):  # closing must not hide the result
-            venv.close()
+            run.venv.close()
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, previous_handler)
+    return interrupted, error, wall
+
+
+def summarize(run: TrainRun, interrupted: bool, error: BaseException | None, wall: float) -> int:
+    """Print how the run ended; returns the exit code."""
+    model, out = run.model, run.out
     powers = final_powers(model.ep_info_buffer or [])
     summary = (
-        f"{model.num_timesteps} steps ({model.num_timesteps - start_steps} new) in {wall:.1f} s"
+        f"{model.num_timesteps} steps ({model.num_timesteps - run.start_steps} new) in {wall:.1f} s"
     )
     if powers.size:
         summary += (
@@ -462,7 +395,7 @@ def run(argv: list[str] | None = None) -> int:
         )
     if error is not None:
         print(f"[train] error after {summary}: {type(error).__name__}: {error}", file=sys.stderr)
-        if saved:
+        if model.num_timesteps > run.start_steps:
             print(f"[train] model so far saved to {out / 'model.zip'}", file=sys.stderr)
         sys.stderr.flush()
         return 1
@@ -475,6 +408,26 @@ def run(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     print(f"[train] done: {summary}; model saved to {out / 'model.zip'}", flush=True)
     return 0
+
+
+def _fail(message: str, code: int = 2) -> int:
+    print(f"[train] error: {message}", file=sys.stderr, flush=True)
+    return code
+
+
+def run(argv: list[str] | None = None) -> int:
+    raw = list(sys.argv[1:] if argv is None else argv)
+    args = cli_args.parse_args(build_parser(), raw)
+    train_run = None
+    try:
+        train_run = resolve_run(args, raw)
+        build_env(train_run)
+        build_model(train_run)
+    except TrainError as exc:
+        if train_run is not None and train_run.venv is not None:
+            train_run.venv.close()
+        return _fail(str(exc))
+    return summarize(train_run, *learn_and_save(train_run))
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,0 +1,91 @@
+"""stable-baselines3 callbacks of ``train`` (imports stable-baselines3: import it lazily)."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from .envs import final_powers
+
+
+class ProgressCallback(BaseCallback):
+    """Progress bar (tqdm) with mean return and final P_N/P_max; logs rollout/final_power."""
+
+    def __init__(self, total: int, enabled: bool):
+        super().__init__()
+        self.total = total
+        self.enabled = enabled
+        self.bar = None
+        self._last_post = 0.0
+        self._last_log = 0
+        self._seen = 0
+
+    def _on_training_start(self) -> None:
+        from tqdm import tqdm
+
+        start = self.model.num_timesteps
+        self.bar = tqdm(
+            total=self.total,
+            initial=start,
+            unit="step",
+            dynamic_ncols=True,
+            disable=not self.enabled,
+            smoothing=0.05,
+            file=sys.stderr,
+            mininterval=0.5,
+        )
+        self._seen = start
+
+    def _on_step(self) -> bool:
+        n = self.model.num_timesteps
+        if self.bar is not None:
+            self.bar.update(n - self._seen)
+        self._seen = n
+        now = time.monotonic()
+        if now - self._last_post > 0.5:
+            self._last_post = now
+            self._post_summary()
+        if n - self._last_log >= 1000:
+            self._last_log = n
+            powers = final_powers(self.model.ep_info_buffer or [])
+            if powers.size:
+                self.logger.record("rollout/final_power_mean", float(powers.mean()))
+        return True
+
+    def _post_summary(self) -> None:
+        buf = self.model.ep_info_buffer
+        if not buf or self.bar is None:
+            return
+        post = {"return": f"{float(np.mean([ep['r'] for ep in buf])):.2f}"}
+        powers = final_powers(buf)
+        if powers.size:
+            post["P_N"] = f"{powers.mean():.3f}"
+        self.bar.set_postfix(post, refresh=False)
+
+    def _on_training_end(self) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def training_callbacks(total: int, progress: bool, checkpoint_every: int, out, normalize: bool):
+    """The progress bar and the checkpoints (``out/checkpoints/model_<steps>_steps.zip``)."""
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+
+    (out / "checkpoints").mkdir(exist_ok=True)
+    return CallbackList(
+        [
+            ProgressCallback(total, enabled=progress),
+            CheckpointCallback(
+                checkpoint_every,
+                str(out / "checkpoints"),
+                name_prefix="model",
+                save_vecnormalize=normalize,
+            ),
+        ]
+    )
