@@ -36,7 +36,13 @@ def _make_spgd(model, params: dict[str, Any], setpoints_fs, seed):
     return SpgdPid(model.stage, SpgdParams(**params), setpoints_fs=setpoints_fs, seed=seed)
 
 
-_FACTORIES = {"spgd": _make_spgd}
+def _make_tracker(model, params: dict[str, Any], setpoints_fs, seed):
+    from .tracker import PhaseTracker, TrackerParams
+
+    return PhaseTracker(model, TrackerParams(**params), setpoints_fs=setpoints_fs, seed=seed)
+
+
+_FACTORIES = {"spgd": _make_spgd, "tracker": _make_tracker}
 CONTROLLERS = tuple(_FACTORIES)
 
 

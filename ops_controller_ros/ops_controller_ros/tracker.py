@@ -1,0 +1,299 @@
+"""Model-based phase retrieval with drift tracking: a stacking controller that needs no training.
+
+The controller knows the stacker's physics (:class:`ops_sim_ros.physics.PulseStacker` built from
+the *nominal* configuration: stage, wavelength, pulse width, detector) and estimates the hidden
+delay errors x (one per stage, the part of each applied delay it did not command) from the stream
+of (commanded set-points u_k, detected slot energies and power y_k) pairs:
+
+    y_k ~ f(u_k + x_k),    x_k = x_t - (t - k) mu     (mu: each stage's drift per step)
+
+One reading does not determine x (different delay vectors give the same slot energies, and x and
+-x always do). The controller's own known moves are the phase diversity that makes the fit unique:
+it fits x to the last ``window`` readings, taken at different set-points, by Levenberg-Marquardt
+in units of optical cycles, and then commands u = -(x + mu) (the stacking point, with the drift
+fed forward) plus a small known excursion.
+
+* **Acquire** (no estimate, or the last fit did not explain the readings): excursions of
+  ``acquire_dither_cycles`` with random signs around the present set-points; a global search
+  scores ``candidates`` random delay vectors over one period per stage against the window and
+  refines the ``refine`` best. The estimate is accepted when its residual is within
+  ``residual_tolerance`` (plus the expected detector noise); otherwise the controller keeps
+  dithering and searches again (it never moves on an estimate it does not trust).
+* **Track**: each reading re-fits from the prediction (a few cheap iterations); the excursion is
+  ``hold_dither_cycles`` (each stage in turn, alternating sign) so the window stays diverse and the
+  sign of a small error stays visible; mu is a smoothed per-step difference of the estimates.
+  A fit whose residual is too large ``misses`` times in a row, or a jump of the readings, sends
+  the controller back to acquisition.
+
+Assumptions, stated: the landscape is periodic in each delay with the optical period (the envelope
+walk-off of a few cycles against a pulse of hundreds of fs is ignored), the random walk of the
+delays over one window is small against the excursions, and detector noise is Gaussian with std
+``detector_noise`` (0: noise-free readings; a residual floor is kept anyway). A model that does not
+fit (a wrong wavelength or pulse width) raises the residual: the tolerance scales with the
+readings' own spread, and the controller then falls back to acquiring rather than running away.
+Set-points always move by the smallest step that reaches the target modulo one period and stay
+within the actuator range.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    window: int = 6  # readings per fit (>= 2: the phase diversity)
+    acquire_dither_cycles: float = 0.02  # excursion per stage while acquiring (actuator size)
+    hold_dither_cycles: float = 0.01  # excursion while tracking
+    candidates: int = 2048  # random delay vectors scored by the global search
+    refine: int = 8  # best candidates refined by Levenberg-Marquardt
+    iterations: int = 12  # LM iterations of a global refinement
+    track_iterations: int = 3  # Gauss-Newton iterations of the filter per reading
+    walk_sigma_cycles: float = 0.001  # assumed random walk of the delays per step
+    drift_gain: float = 0.1  # smoothing of the drift estimate (0: no drift feed-forward)
+    residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit
+    detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
+    misses: int = 3  # bad fits in a row before re-acquiring
+    window_track: bool = True  # track by re-fitting the window instead of the filter
+
+    def __post_init__(self):
+        checks = (
+            ("window", self.window >= 2, ">= 2"),
+            ("acquire_dither_cycles", 0 < self.acquire_dither_cycles <= 0.25, "in (0, 0.25]"),
+            ("hold_dither_cycles", 0 <= self.hold_dither_cycles <= 0.25, "in [0, 0.25]"),
+            ("candidates", self.candidates >= 1, ">= 1"),
+            ("refine", 1 <= self.refine <= self.candidates, "in [1, candidates]"),
+            ("iterations", self.iterations >= 1, ">= 1"),
+            ("track_iterations", self.track_iterations >= 1, ">= 1"),
+            ("walk_sigma_cycles", self.walk_sigma_cycles > 0, "> 0"),
+            ("drift_gain", 0 <= self.drift_gain <= 1, "in [0, 1]"),
+            ("residual_tolerance", self.residual_tolerance > 0, "> 0"),
+            ("detector_noise", self.detector_noise >= 0, ">= 0"),
+            ("misses", self.misses >= 1, ">= 1"),
+        )
+        for name, ok, allowed in checks:
+            if not ok:
+                raise ValueError(f"{name} must be {allowed} (got {getattr(self, name)!r})")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _wrap(cycles):
+    """Reduce to [-1/2, 1/2) cycle."""
+    return cycles - np.floor(cycles + 0.5)
+
+
+class PhaseTracker:
+    """Model-based stacking controller (see the module docstring): reset / command / observe."""
+
+    def __init__(self, model, params: TrackerParams | None = None, setpoints_fs=None, seed=None):
+        from ops_sim_ros.physics import stacker_from_config
+
+        self.model = model
+        self.stage = int(model.stage)
+        self.params = params or TrackerParams()
+        self.stacker = stacker_from_config(model)
+        self.period_fs = model.optical_period_fs
+        self.range_cycles = model.actuator_range_cycles
+        self._rng = np.random.default_rng(seed)
+        self.reset(np.zeros(self.stage) if setpoints_fs is None else setpoints_fs)
+
+    # ------------------------------------------------------------------ interface
+    def reset(self, setpoints_fs) -> None:
+        """Start again from ``setpoints_fs``: forget the estimate and the readings."""
+        u = np.asarray(setpoints_fs, dtype=np.float64).reshape(self.stage) / self.period_fs
+        self._base = u.copy()  # set-points (cycles) around which the excursions are made
+        self._last_command = u.copy()
+        self._history: deque = deque(maxlen=self.params.window)
+        self.estimate = None  # hidden delay errors now, cycles (None: not acquired)
+        self.drift = np.zeros(self.stage)  # per step, cycles
+        self.residual = float("nan")
+        self.acquisitions = 0
+        self._bad_fits = 0
+        self._tick = 0
+        self.last_power = float("nan")
+
+    @property
+    def locked(self) -> bool:
+        return self.estimate is not None
+
+    @property
+    def setpoints_fs(self) -> np.ndarray:
+        """The set-points the controller aims at (cycles -> fs), without the excursion."""
+        return self._base * self.period_fs
+
+    def command(self) -> np.ndarray:
+        """Set-points (fs) to apply now."""
+        p = self.params
+        if self.estimate is None:
+            signs = self._rng.choice((-1.0, 1.0), size=self.stage)
+            u = self._base + p.acquire_dither_cycles * signs
+        else:
+            target = -(self.estimate + self.drift)  # stacking point of the next step
+            self._base = self._base + _wrap(target - self._base)
+            u = self._base.copy()
+            j = self._tick % self.stage
+            u[j] += p.hold_dither_cycles * (1.0 if (self._tick // self.stage) % 2 == 0 else -1.0)
+        u = np.clip(u, -self.range_cycles, self.range_cycles)
+        self._last_command = u
+        return u * self.period_fs
+
+    def observe(self, power: float, pulse_energies=None) -> None:
+        """The reading produced by the last :meth:`command`; updates the estimate."""
+        if pulse_energies is None:
+            raise ValueError("the tracker needs the detected pulse energies, not only the power")
+        y = np.append(np.asarray(pulse_energies, dtype=np.float64).ravel(), float(power))
+        if y.size != self.stacker.num_slots + 1 or not np.all(np.isfinite(y)):
+            raise ValueError(
+                f"expected {self.stacker.num_slots} finite pulse energies and a finite power"
+            )
+        self.last_power = float(power)
+        self._tick += 1
+        self._history.append((self._last_command.copy(), y))
+        if len(self._history) < self.params.window:
+            return
+        if self.estimate is None:
+            self._acquire()
+        else:
+            self._track()
+
+    # ------------------------------------------------------------------ estimation
+    def _window(self):
+        u = np.stack([h[0] for h in self._history])  # (K, N) cycles
+        y = np.stack([h[1] for h in self._history])  # (K, S + 1)
+        age = np.arange(len(u) - 1, -1, -1, dtype=np.float64)  # steps before the latest
+        return u, y, age
+
+    def _tolerance(self, y: np.ndarray) -> float:
+        return self.params.residual_tolerance + 2.0 * self.params.detector_noise**2
+
+    def _predict(self, x: np.ndarray, u: np.ndarray, age: np.ndarray, drift) -> np.ndarray:
+        """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles."""
+        m, k = x.shape[0], u.shape[0]
+        delays = u[None, :, :] + x[:, None, :] - age[None, :, None] * drift[None, None, :]
+        out = self.stacker.evaluate(delays.reshape(m * k, self.stage) * self.period_fs)
+        pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
+        return pred.reshape(m, k, -1)
+
+    def _cost(self, x, u, y, age, drift) -> np.ndarray:
+        r = self._predict(x, u, age, drift) - y[None]
+        return np.mean(r * r, axis=(1, 2))
+
+    def _refine(self, x, u, y, age, drift, iterations: int):
+        """Batched Levenberg-Marquardt from starts x (M, N); returns (x, cost)."""
+        m, n = x.shape
+        h = 1e-3  # finite-difference step, cycles
+        lam = np.full(m, 1e-2)
+        steps = np.concatenate([np.zeros((1, n)), h * np.eye(n)])  # (N + 1, N)
+        cost = None
+        for _ in range(iterations):
+            pts = (x[:, None, :] + steps[None]).reshape(m * (n + 1), n)
+            pred = self._predict(pts, u, age, drift).reshape(m, n + 1, -1)
+            r = pred[:, 0] - y.ravel()[None]  # (M, R)
+            jac = (pred[:, 1:] - pred[:, :1]) / h  # (M, N, R)
+            cost = np.mean(r * r, axis=1)
+            jtj = jac @ jac.transpose(0, 2, 1)  # (M, N, N)
+            jtr = jac @ r[:, :, None]  # (M, N, 1)
+            diag = np.einsum("mii->mi", jtj)
+            a = jtj + (lam[:, None] * (diag + 1e-9))[:, :, None] * np.eye(n)[None]
+            delta = -np.linalg.solve(a, jtr)[:, :, 0]
+            delta = np.clip(delta, -0.1, 0.1)  # at most a tenth of a cycle per iteration
+            trial = x + delta
+            new_cost = self._cost(trial, u, y, age, drift)
+            better = new_cost < cost
+            x = np.where(better[:, None], trial, x)
+            cost = np.where(better, new_cost, cost)
+            lam = np.where(better, lam * 0.3, lam * 4.0)
+        return x, cost
+
+    def _acquire(self) -> None:
+        p = self.params
+        u, y, age = self._window()
+        drift = np.zeros(self.stage)
+        cand = self._rng.uniform(-0.5, 0.5, size=(p.candidates, self.stage))
+        cost = self._cost(cand, u, y, age, drift)
+        best = cand[np.argsort(cost)[: p.refine]]
+        x, cost = self._refine(best, u, y, age, drift, p.iterations)
+        i = int(np.argmin(cost))
+        self.residual = float(cost[i])
+        if self.residual <= self._tolerance(y):
+            self._start_filter(x[i])
+            self.acquisitions += 1
+            self._bad_fits = 0
+
+    def _start_filter(self, x: np.ndarray) -> None:
+        """Start the tracking filter at the acquired estimate x (cycles)."""
+        self.estimate = _wrap(x)
+        self.drift = np.zeros(self.stage)
+        self._cov = np.eye(self.stage) * 0.005**2  # what a window fit leaves
+
+    def _track(self) -> None:
+        if self.params.window_track:
+            return self._track_window()
+        return self._track_filter()
+
+    def _track_window(self) -> None:
+        """Re-fit x to the whole window from the prediction (drift fed forward)."""
+        p = self.params
+        u, y, age = self._window()
+        start = (self.estimate + self.drift)[None]
+        x, cost = self._refine(start, u, y, age, self.drift, p.track_iterations)
+        self.residual = float(cost[0])
+        if self.residual > self._tolerance(y):
+            self._bad_fits += 1
+            if self._bad_fits >= p.misses:
+                self.estimate = None
+                self._history.clear()
+                return
+        else:
+            self._bad_fits = 0
+        step = _wrap(x[0] - self.estimate)
+        self.drift = (1.0 - p.drift_gain) * self.drift + p.drift_gain * step
+        self.estimate = _wrap(x[0])
+
+    def _track_filter(self) -> None:
+        """One iterated extended Kalman filter update of x with the latest reading.
+
+        Prediction: x <- x + mu (the smoothed drift) plus the random walk. Update: Gauss-Newton
+        on |x - x_pred|^2_P + |y - f(u + x)|^2_R from the prediction; the covariance keeps what
+        the readings did not see, so a direction the readings are blind to (near the optimum a
+        reading is quadratic in the error) stays at its prediction instead of wandering. The
+        drift mu is a smoothed per-step difference of the estimates.
+        """
+        p = self.params
+        n = self.stage
+        u, y = self._history[-1]
+        x_pred = self.estimate + self.drift
+        # the walk, plus what the drift estimate may be wrong by
+        q = p.walk_sigma_cycles**2 + (p.drift_gain * np.abs(self.drift)) ** 2
+        cov = self._cov + np.eye(n) * q
+        cov_inv = np.linalg.inv(cov)
+        r_var = max(p.detector_noise, 1e-4) ** 2
+        h = 1e-3
+        steps = np.concatenate([np.zeros((1, n)), h * np.eye(n)])
+        x = x_pred.copy()
+        for _ in range(p.track_iterations):
+            pred = self._predict(x + steps, u[None], np.zeros(1), np.zeros(n))[:, 0]
+            resid = y - pred[0]
+            jac = ((pred[1:] - pred[:1]) / h).T  # (S + 1, N)
+            a = cov_inv + jac.T @ jac / r_var
+            b = jac.T @ resid / r_var - cov_inv @ (x - x_pred)
+            x = x + np.clip(np.linalg.solve(a, b), -0.1, 0.1)
+        self._cov = np.linalg.inv(a)
+        final = self._predict(x[None], u[None], np.zeros(1), np.zeros(n))[0, 0]
+        self.residual = float(np.mean((y - final) ** 2))
+        if self.residual > self._tolerance(y):
+            self._bad_fits += 1
+            if self._bad_fits >= p.misses:
+                self.estimate = None  # re-acquire from the next full window
+                self._history.clear()
+                return
+        else:
+            self._bad_fits = 0
+        step = _wrap(x - self.estimate)
+        self.drift = (1.0 - p.drift_gain) * self.drift + p.drift_gain * step
+        self.estimate = _wrap(x)
