@@ -4,7 +4,7 @@
 metadata saved beside it by training, builds each observation with the same function as the
 in-process environment (``ops_sim_ros.observation.build_observation``) from the simulator's trace,
 power and set-points, and publishes new set-points: current set-points + action * max step (the
-policy acts in increments; absolute-action models map [-1, 1] to their trained range).
+only action type ``ops_controller_ros.policy_io`` loads is "increment").
 
 A step's readings are used only once the set-points they report equal the last command (the
 simulator publishes ``ops/delays`` first), as in the SPGD node. A model trained for another stage
@@ -16,7 +16,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from ops_sim_ros.config import OpsConfig
 from ops_sim_ros.node_params import ParamSpec, declare_all
 from ops_sim_ros.observation import ObservationSpec, build_observation, pulse_energies_from_trace
 from ops_sim_ros.ros_interface import (
@@ -61,13 +60,7 @@ class PolicyNode(Node):
             raise ParameterError(f"model: {exc}") from None
         meta = self._policy.metadata
         self._spec = ObservationSpec.from_dict(meta["observation_spec"])
-        config = OpsConfig.from_dict(meta["config"]) if meta.get("config") else None
-        self._increment = self._policy.action_type == "increment"
-        self._action_scale = (
-            self._policy.max_step_fs
-            if self._increment
-            else (config.absolute_action_range_fs if config else self._policy.max_step_fs)
-        )
+        self._max_step_fs = self._policy.max_step_fs  # policy_io loads increment models only
 
         self._tracker = CommandTracker(v["timeout_s"])
         self._delays: np.ndarray | None = None
@@ -116,10 +109,7 @@ class PolicyNode(Node):
             )
         obs = build_observation(self._spec, energies, float(msg.data), self._delays)
         action = np.asarray(self._policy.predict(obs), dtype=np.float64).reshape(-1)
-        if self._increment:
-            command = self._delays + action * self._action_scale
-        else:
-            command = action * self._action_scale
+        command = self._delays + action * self._max_step_fs
         self._last_power = float(msg.data)
         self._steps += 1
         self._trace = None

@@ -33,37 +33,22 @@ from .command_tracker import CommandTracker
 from .spgd import SpgdParams, SpgdPid
 
 _DEFAULTS = SpgdParams()
+# The node's parameters of the algorithm: SpgdParams' own fields (their defaults and types),
+# with the description and range the node declares; one table, read twice.
+_SPGD_FIELDS = {
+    "gain": ("SPGD gain: fs^2 per unit of normalized power", 0.0, 1e6, True),
+    "perturbation_fs": ("dither amplitude per stage, fs", 0.0, 1e3, True),
+    "kp": ("PID proportional gain on the SPGD update", -1e6, 1e6, False),
+    "ki": ("PID integral gain", -1e6, 1e6, False),
+    "kd": ("PID derivative gain", -1e6, 1e6, False),
+    "momentum": ("momentum of the update, in [0, 1)", 0.0, 0.999, False),
+    "max_update_fs": ("largest set-point change per iteration", 0.0, 1e3, True),
+}
 PARAMS = [
-    ParamSpec(
-        "gain",
-        _DEFAULTS.gain,
-        "SPGD gain: fs^2 per unit of normalized power",
-        low=0.0,
-        high=1e6,
-        low_exclusive=True,
-    ),
-    ParamSpec(
-        "perturbation_fs",
-        _DEFAULTS.perturbation_fs,
-        "dither amplitude per stage, fs",
-        low=0.0,
-        high=1e3,
-        low_exclusive=True,
-    ),
-    ParamSpec("kp", _DEFAULTS.kp, "PID proportional gain on the SPGD update", low=-1e6, high=1e6),
-    ParamSpec("ki", _DEFAULTS.ki, "PID integral gain", low=-1e6, high=1e6),
-    ParamSpec("kd", _DEFAULTS.kd, "PID derivative gain", low=-1e6, high=1e6),
-    ParamSpec(
-        "momentum", _DEFAULTS.momentum, "momentum of the update, in [0, 1)", low=0.0, high=0.999
-    ),
-    ParamSpec(
-        "max_update_fs",
-        _DEFAULTS.max_update_fs,
-        "largest set-point change per iteration",
-        low=0.0,
-        high=1e3,
-        low_exclusive=True,
-    ),
+    *[
+        ParamSpec(name, getattr(_DEFAULTS, name), desc, low=lo, high=hi, low_exclusive=excl)
+        for name, (desc, lo, hi, excl) in _SPGD_FIELDS.items()
+    ],
     ParamSpec(
         "rate_hz", 0.0, "largest command rate; 0: as fast as readings arrive", low=0.0, high=1e6
     ),
@@ -78,15 +63,7 @@ class SpgdNode(Node):
         super().__init__("ops_spgd")
         v = declare_all(self, PARAMS)
         try:
-            self._params = SpgdParams(
-                gain=v["gain"],
-                perturbation_fs=v["perturbation_fs"],
-                kp=v["kp"],
-                ki=v["ki"],
-                kd=v["kd"],
-                momentum=v["momentum"],
-                max_update_fs=v["max_update_fs"],
-            )
+            self._params = SpgdParams(**{name: v[name] for name in _SPGD_FIELDS})
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
         self._seed = None if v["seed"] < 0 else v["seed"]
@@ -96,6 +73,7 @@ class SpgdNode(Node):
         self._ctrl: SpgdPid | None = None
         self._tracker = CommandTracker(v["timeout_s"])
         self._next_allowed = 0.0
+        self._last_reading_at = float("-inf")  # monotonic time of the last used reading
 
         # Delays first: when both are ready the executor takes them in creation order.
         self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
@@ -133,6 +111,7 @@ class SpgdNode(Node):
         self._ctrl.observe(float(msg.data))
         self._tracker.answered()
         now = time.monotonic()
+        self._last_reading_at = now
         if now >= self._next_allowed:
             self._next_allowed = now + self._min_period
             self._send()
@@ -153,10 +132,19 @@ class SpgdNode(Node):
             self._send()
 
     def _log_progress(self):
-        if self._ctrl is not None and self._ctrl.iterations:
+        if self._ctrl is None or not self._ctrl.iterations:
+            return
+        silent_s = time.monotonic() - self._last_reading_at
+        if silent_s > max(self._tracker.timeout_s, self._log_period):
+            # The simulator (or rig) is gone or stalled: the last power is no longer current.
             self.get_logger().info(
-                f"iteration {self._ctrl.iterations}: P_N/P_max = {self._ctrl.last_power:.4f}"
+                f"iteration {self._ctrl.iterations}: no reading for {silent_s:.1f} s "
+                "(waiting for the simulator)"
             )
+            return
+        self.get_logger().info(
+            f"iteration {self._ctrl.iterations}: P_N/P_max = {self._ctrl.last_power:.4f}"
+        )
 
 
 def main(args=None):

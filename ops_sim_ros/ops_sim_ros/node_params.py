@@ -1,9 +1,11 @@
 """Declaring and validating node parameters with descriptors, for every node of the project.
 
-Each parameter is described once (:class:`ParamSpec`): its default, a description, and the values
-it allows. :func:`declare_all` declares them with ``ParameterDescriptor`` ranges (visible in
-``ros2 param describe``) and turns any bad value into a :class:`ParameterError` that names the
-parameter and the allowed values; :func:`check_value` validates a runtime change the same way.
+Each parameter is described once (:class:`ParamSpec`): its type (that of its default), a
+description, the values it allows and whether it may change while the node runs (``read_only``:
+fixed after start). :func:`declare_all` declares them with ``ParameterDescriptor`` ranges (visible
+in ``ros2 param describe``) and turns any bad value into a :class:`ParameterError` that names the
+parameter and the allowed values; :func:`check_change` validates a runtime change the same way.
+A float parameter takes an integer as well (``-p rate_hz:=50``, ``ros2 param set ... rate_hz 50``).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from dataclasses import dataclass
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from .ros_interface import ParameterError
 
@@ -26,7 +29,7 @@ class ParamSpec:
     high: float | None = None  # inclusive upper bound for numbers
     choices: tuple[str, ...] = ()  # allowed strings
     low_exclusive: bool = False  # True: value must be > low
-    read_only: bool = False
+    read_only: bool = False  # True: fixed while the node runs (a change is refused with why)
 
     @property
     def allowed(self) -> str:
@@ -42,11 +45,13 @@ class ParamSpec:
         return kind
 
     def descriptor(self) -> ParameterDescriptor:
+        # read_only is enforced by check_change (with a reason naming the parameter), not by
+        # rclpy (whose refusal does not say what to do), so the descriptor does not set it.
         d = ParameterDescriptor(
             name=self.name,
             description=self.description,
-            additional_constraints=f"allowed: {self.allowed}",
-            read_only=self.read_only,
+            additional_constraints=f"allowed: {self.allowed}"
+            + ("; fixed while the node runs" if self.read_only else ""),
         )
         # Ranges are checked by check_value (for a clear message); the descriptor carries them
         # for tools, with both ends set as ROS requires.
@@ -89,19 +94,56 @@ def check_value(spec: ParamSpec, value) -> str | None:
     return None
 
 
+def check_change(specs: dict[str, ParamSpec], name: str, value) -> str | None:
+    """Why a runtime change of ``name`` to ``value`` is refused, or None (unknown names pass)."""
+    spec = specs.get(name)
+    if spec is None:
+        return None
+    if spec.read_only:
+        return f"{name} cannot change while the node runs; restart the node"
+    return check_value(spec, value)
+
+
+def _float_spec_names(specs: list[ParamSpec]) -> set[str]:
+    return {s.name for s in specs if isinstance(s.default, float)}
+
+
 def declare_all(node: Node, specs: list[ParamSpec]) -> dict:
-    """Declare every parameter; return their values, or raise ParameterError naming the bad one."""
+    """Declare every parameter; return their values, or raise ParameterError naming the bad one.
+
+    A float parameter is declared dynamically typed, so that an integer given on the command line
+    is taken, then made a static double; runtime integers are turned into doubles before rclpy
+    checks their type (a pre-set callback)."""
     values = {}
+    floats = _float_spec_names(specs)
     for spec in specs:
-        try:
-            param = node.declare_parameter(
-                spec.name, spec.default, spec.descriptor(), ignore_override=False
+        descriptor = spec.descriptor()
+        if spec.name in floats:
+            descriptor = ParameterDescriptor(
+                name=spec.name, description=spec.description, dynamic_typing=True
             )
+        try:
+            param = node.declare_parameter(spec.name, spec.default, descriptor)
         except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
             raise ParameterError(f"{spec.name} must be {spec.allowed} ({exc})") from None
         value = coerce(spec, param.value)
         problem = check_value(spec, value)
         if problem:
             raise ParameterError(problem)
+        if spec.name in floats:  # from now on a static double
+            static = spec.descriptor()
+            static.type = Parameter.Type.DOUBLE.value
+            msg_value = Parameter(spec.name, value=value).get_parameter_value()
+            node.set_descriptor(spec.name, static, msg_value)
         values[spec.name] = value
+    node.add_pre_set_parameters_callback(lambda params: _ints_to_floats(params, floats))
     return values
+
+
+def _ints_to_floats(params: list[Parameter], floats: set[str]) -> list[Parameter]:
+    return [
+        Parameter(p.name, value=float(p.value))
+        if p.name in floats and p.type_ == Parameter.Type.INTEGER
+        else p
+        for p in params
+    ]

@@ -473,9 +473,16 @@ def trace_time_axis_ns(num_slots: int, samples_per_slot: int, pulse_spacing_fs: 
 
 
 def power_to_reward(power, p_min: float = 0.0) -> np.ndarray:
-    """Eq. (3) of the paper with normalized P: -(P - 1)^2 / (P_min - 1)^2."""
+    """Eq. (3) of the paper with normalized P: -(P - 1)^2 / (P_min - 1)^2 (the one reward
+    formula: the simulation, the env and the nodes all use it). float64, shape of ``power``."""
     p = np.asarray(power, dtype=np.float64)
-    return -((p - 1.0) ** 2) / (p_min - 1.0) ** 2
+    if p.ndim == 0:
+        return np.float64(-((float(p) - 1.0) ** 2) / (p_min - 1.0) ** 2)
+    reward = np.subtract(p, 1.0)
+    np.multiply(reward, np.subtract(1.0, p), out=reward)  # -(1 - P)^2
+    if p_min != 0.0:
+        reward /= (p_min - 1.0) ** 2
+    return reward
 
 
 def stacker_from_config(config, dtype: type = np.float32) -> PulseStacker:

@@ -11,6 +11,8 @@ before sending the next command gets each command's own outputs (docs/interfaces
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
@@ -18,8 +20,8 @@ from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 from std_srvs.srv import Trigger
 
-from .config import DETECTORS, MAX_STAGE, MODES, SPLITS, make_config
-from .node_params import ParamSpec, check_value, coerce, declare_all
+from .config import DETECTORS, LIMITS, MAX_STAGE, MODES, SPLITS, make_config
+from .node_params import ParamSpec, check_change, coerce, declare_all
 from .ros_interface import (
     QOS_RELIABLE,
     QOS_STATE,
@@ -50,7 +52,14 @@ _CONFIG_OVERRIDES = (
 )
 
 PARAMS = [
-    ParamSpec("stage", 3, "number of stacking stages N (2^N pulses)", low=1, high=MAX_STAGE),
+    ParamSpec(
+        "stage",
+        3,
+        "number of stacking stages N (2^N pulses)",
+        low=1,
+        high=MAX_STAGE,
+        read_only=True,
+    ),
     ParamSpec(
         "mode", "medium", "difficulty: initial state and drift (paper Fig. 4)", choices=MODES
     ),
@@ -61,12 +70,21 @@ PARAMS = [
         "what the detector sees: the s port behind a polarizer, or the total intensity",
         choices=DETECTORS,
     ),
-    ParamSpec("seed", -1, "random seed; -1 draws one from the OS", low=-1, high=2**31 - 1),
+    ParamSpec(
+        "seed", -1, "random seed; -1 draws one from the OS", low=-1, high=2**31 - 1, read_only=True
+    ),
     ParamSpec(
         "rate_hz", 100.0, "free-running step rate", low=0.0, high=100000.0, low_exclusive=True
     ),
     ParamSpec("lockstep", False, "true: one step per command instead of a timer"),
-    ParamSpec("samples_per_slot", 8, "trace samples per pulse slot", low=1, high=64),
+    ParamSpec(
+        "samples_per_slot",
+        8,
+        "trace samples per pulse slot",
+        low=LIMITS["samples_per_slot"][0],
+        high=LIMITS["samples_per_slot"][1],
+        read_only=True,
+    ),
     ParamSpec(
         "diagnostics_period_s",
         1.0,
@@ -75,24 +93,17 @@ PARAMS = [
         high=3600.0,
         low_exclusive=True,
     ),
-    *[ParamSpec(name, -1.0, desc + " (-1: mode default)") for name, desc in _CONFIG_OVERRIDES],
+    # -1 means "the mode's default"; otherwise the config's range (LIMITS) applies.
+    *[
+        ParamSpec(name, -1.0, desc + " (-1: mode default)", low=-1.0, high=LIMITS[name][1])
+        for name, desc in _CONFIG_OVERRIDES
+    ],
 ]
 _SPECS = {p.name: p for p in PARAMS}
-_LIVE = {
-    "mode",
-    "split",
-    "detector",
-    "rate_hz",
-    "lockstep",
-    "diagnostics_period_s",
-    "detector_noise",
-    "jitter_sigma_cycles",
-    "drift_slope_max_cycles",
-    "drift_slope_min_cycles",
-    "initial_sigma_cycles",
-    "actuator_range_cycles",
-}
 _WARN_PERIOD_S = 2.0
+#: Warn when the steps of the last RATE_WINDOW_S seconds ran below this share of rate_hz.
+RATE_WINDOW_S = 2.0
+RATE_TOLERANCE = 0.9
 
 
 def config_from_params(values: dict):
@@ -149,6 +160,7 @@ class SimNode(Node):
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
+        self._rate_window = None  # (monotonic time, steps) at the start of the rate window
         if not self._values["lockstep"]:
             self._timer = self.create_timer(1.0 / self._values["rate_hz"], self._step)
         if self._diag_timer is not None:
@@ -161,6 +173,27 @@ class SimNode(Node):
         self._result = self._sim.step_setpoints(self._command[None, :])
         self._steps += 1
         self._publish()
+        if self._timer is not None:
+            self._check_rate()
+
+    def _check_rate(self):
+        """Warn (throttled) when the free-running steps fall behind ``rate_hz``."""
+        now = time.monotonic()
+        if self._rate_window is None:
+            self._rate_window = (now, self._steps)
+            return
+        t0, n0 = self._rate_window
+        if now - t0 < RATE_WINDOW_S:
+            return
+        reached = (self._steps - n0) / (now - t0)
+        self._rate_window = (now, self._steps)
+        wanted = self._values["rate_hz"]
+        if reached < RATE_TOLERANCE * wanted:
+            self.get_logger().warning(
+                f"cannot keep rate_hz {wanted:g}: {reached:.0f} steps/s reached over the last "
+                f"{now - t0:.1f} s (each step computes and publishes; lower rate_hz or stage)",
+                throttle_duration_sec=10.0,
+            )
 
     def _publish(self):
         r = self._result
@@ -229,17 +262,12 @@ class SimNode(Node):
     def _on_set_parameters(self, params):
         new = dict(self._values)
         for p in params:
-            spec = _SPECS.get(p.name)
-            if spec is None:
+            if p.name not in _SPECS:
                 continue
-            if p.name not in _LIVE:
-                return SetParametersResult(
-                    successful=False,
-                    reason=f"{p.name} cannot change while the simulator runs; restart the node",
-                )
-            value = coerce(spec, p.value)
-            problem = check_value(spec, value)
+            value = coerce(_SPECS[p.name], p.value)
+            problem = check_change(_SPECS, p.name, value)
             if problem:
+                problem = problem.replace("while the node runs", "while the simulator runs")
                 return SetParametersResult(successful=False, reason=problem)
             new[p.name] = value
         try:

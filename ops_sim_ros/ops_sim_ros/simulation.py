@@ -15,7 +15,7 @@ import numpy as np
 from .arrays import clip as _clip
 from .config import OpsConfig
 from .noise import DelayNoise
-from .physics import stacker_from_config
+from .physics import power_to_reward, stacker_from_config
 
 _isfinite = np.isfinite
 _all = np.logical_and.reduce  # ndarray.all() without its Python wrapper
@@ -167,15 +167,12 @@ class BatchedSimulation:
         energies = true_energies
         if self.config.detector_noise > 0.0:
             energies = energies + self.rng.normal(0.0, self.config.detector_noise, energies.shape)
+        reward = power_to_reward(power)
         if self.num_envs == 1:
             # One env: the same arithmetic on Python floats (fewer numpy calls per step).
-            x = 1.0 - float(power[0])
-            reward = np.array([-(x * x)])
             main = np.array([float(true_energies[0, self._main_slot])])
             rejected = np.array([0.0 if self._total else 1.0 - float(true_energies.sum())])
         else:
-            reward = np.subtract(power, 1.0)
-            np.multiply(reward, np.subtract(1.0, power), out=reward)  # -(1 - power)^2
             main = true_energies[:, self._main_slot].copy()
             if self._total:  # both polarizations are detected: nothing is rejected
                 rejected = np.zeros(self.num_envs)
