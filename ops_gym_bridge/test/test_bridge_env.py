@@ -135,7 +135,7 @@ def test_close_leaves_no_node_or_thread(sim3):
     )
     env.reset()
     env.step(np.zeros(3))
-    context = env._context
+    context = env.client.context
     env.close()
     env.close()  # idempotent
     after = {t.ident for t in threading.enumerate()}
