@@ -58,6 +58,7 @@ class TrackerParams:
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
     misses: int = 3  # bad fits in a row before re-acquiring
     window_track: bool = True  # track by re-fitting the window instead of the filter
+    acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
 
     def __post_init__(self):
         checks = (
@@ -174,7 +175,8 @@ class PhaseTracker:
     def _predict(self, x: np.ndarray, u: np.ndarray, age: np.ndarray, drift) -> np.ndarray:
         """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles."""
         m, k = x.shape[0], u.shape[0]
-        delays = u[None, :, :] + x[:, None, :] - age[None, :, None] * drift[None, None, :]
+        drift = np.broadcast_to(drift, x.shape)  # (N,) shared or (M, N) per candidate
+        delays = u[None, :, :] + x[:, None, :] - age[None, :, None] * drift[:, None, :]
         out = self.stacker.evaluate(delays.reshape(m * k, self.stage) * self.period_fs)
         pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
         return pred.reshape(m, k, -1)
@@ -184,26 +186,35 @@ class PhaseTracker:
         return np.mean(r * r, axis=(1, 2))
 
     def _refine(self, x, u, y, age, drift, iterations: int):
-        """Batched Levenberg-Marquardt from starts x (M, N); returns (x, cost)."""
-        m, n = x.shape
-        h = 1e-3  # finite-difference step, cycles
+        """Batched Levenberg-Marquardt from starts x (M, N); returns (x, cost).
+
+        ``drift`` (N,) is held fixed; with ``drift=None`` each start's drift is fitted too
+        (x is then (M, 2N): the errors now and their drift per step)."""
+        m, dim = x.shape
+        n = self.stage
+
+        def split(z):
+            return (z, drift) if drift is not None else (z[:, :n], z[:, n:])
+
+        h = 1e-3  # finite-difference step, cycles (or cycles per step)
         lam = np.full(m, 1e-2)
-        steps = np.concatenate([np.zeros((1, n)), h * np.eye(n)])  # (N + 1, N)
+        steps = np.concatenate([np.zeros((1, dim)), h * np.eye(dim)])  # (dim + 1, dim)
         cost = None
         for _ in range(iterations):
-            pts = (x[:, None, :] + steps[None]).reshape(m * (n + 1), n)
-            pred = self._predict(pts, u, age, drift).reshape(m, n + 1, -1)
+            pts = (x[:, None, :] + steps[None]).reshape(m * (dim + 1), dim)
+            pred = self._predict(*split(pts)[:1], u, age, split(pts)[1])
+            pred = pred.reshape(m, dim + 1, -1)
             r = pred[:, 0] - y.ravel()[None]  # (M, R)
-            jac = (pred[:, 1:] - pred[:, :1]) / h  # (M, N, R)
+            jac = (pred[:, 1:] - pred[:, :1]) / h  # (M, dim, R)
             cost = np.mean(r * r, axis=1)
-            jtj = jac @ jac.transpose(0, 2, 1)  # (M, N, N)
-            jtr = jac @ r[:, :, None]  # (M, N, 1)
+            jtj = jac @ jac.transpose(0, 2, 1)
+            jtr = jac @ r[:, :, None]
             diag = np.einsum("mii->mi", jtj)
-            a = jtj + (lam[:, None] * (diag + 1e-9))[:, :, None] * np.eye(n)[None]
+            a = jtj + (lam[:, None] * (diag + 1e-9))[:, :, None] * np.eye(dim)[None]
             delta = -np.linalg.solve(a, jtr)[:, :, 0]
             delta = np.clip(delta, -0.1, 0.1)  # at most a tenth of a cycle per iteration
             trial = x + delta
-            new_cost = self._cost(trial, u, y, age, drift)
+            new_cost = self._cost(*split(trial)[:1], u, y, age, split(trial)[1])
             better = new_cost < cost
             x = np.where(better[:, None], trial, x)
             cost = np.where(better, new_cost, cost)
@@ -219,9 +230,17 @@ class PhaseTracker:
         best = cand[np.argsort(cost)[: p.refine]]
         x, cost = self._refine(best, u, y, age, drift, p.iterations)
         i = int(np.argmin(cost))
+        fitted_drift = np.zeros(self.stage)
+        if cost[i] > self._tolerance(y) and p.acquire_drift:
+            # Drift within the window (strong drift): fit it too, from the best starts.
+            z = np.concatenate([x, np.zeros_like(x)], axis=1)
+            z, cost = self._refine(z, u, y, age, None, p.iterations)
+            i = int(np.argmin(cost))
+            x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         self.residual = float(cost[i])
         if self.residual <= self._tolerance(y):
             self._start_filter(x[i])
+            self.drift = fitted_drift
             self.acquisitions += 1
             self._bad_fits = 0
 
