@@ -11,6 +11,7 @@ Pure: imports neither rclpy nor torch nor gymnasium.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from collections.abc import Iterable
 from typing import Any
@@ -99,7 +100,8 @@ def add_key_value_argument(parser: argparse.ArgumentParser, *flags: str, help: s
 
 def parse_key_value(text: str, what: str = "parameter") -> tuple[str, Any]:
     """``"key=value"`` -> (key, value parsed as YAML: ``1`` int, ``0.1`` float, ``[64, 64]``
-    list, ``true`` bool, anything else a string). ValueError names ``what`` was malformed."""
+    list, ``true`` bool, ``1e30`` float, anything else a string). ValueError names ``what``
+    was malformed."""
     import yaml
 
     if "=" not in text:
@@ -112,6 +114,9 @@ def parse_key_value(text: str, what: str = "parameter") -> tuple[str, Any]:
         value = yaml.safe_load(raw) if raw.strip() else None
     except yaml.YAMLError as exc:
         raise ValueError(f"cannot parse the value of {key}: {raw!r} ({exc})") from None
+    if isinstance(value, str):  # YAML 1.1 reads 1e30 (no dot, no sign) as a string
+        with contextlib.suppress(ValueError):
+            value = float(value)
     return key, value
 
 

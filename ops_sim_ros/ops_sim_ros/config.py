@@ -225,6 +225,14 @@ def make_config(
     values.update(_DRIFT_DEFAULTS.get((mode, split), {}))
     values.update(overrides)
 
+    _check_types(values)
+    cfg = OpsConfig(**values)
+    _check_ranges(cfg)
+    return cfg
+
+
+def _check_types(values: dict[str, Any]) -> None:
+    """Check each field's type in place (ints and floats normalized)."""
     for name in _FIELD_NAMES:
         if name not in values:
             continue
@@ -247,7 +255,9 @@ def make_config(
                 f"{name} must be finite (got {v!r})",
             )
 
-    cfg = OpsConfig(**values)
+
+def _check_ranges(cfg: OpsConfig) -> None:
+    """Check ranges and relations between fields."""
     positive = (
         "wavelength_nm",
         "pulse_fwhm_fs",
@@ -293,4 +303,3 @@ def make_config(
         "pulse_spacing_fs must be >= 20 * pulse_fwhm_fs so pulses in neighbouring slots do not "
         f"overlap (got {cfg.pulse_spacing_fs} vs fwhm {cfg.pulse_fwhm_fs})",
     )
-    return cfg

@@ -34,15 +34,15 @@ class _BatchCore:
 
     def _setup(
         self,
-        num_envs,
-        stage,
-        mode,
-        split,
-        action_type,
-        max_episode_steps,
-        seed,
-        observation_options,
-        overrides,
+        num_envs: int,
+        seed=None,
+        stage: int = 5,
+        mode: str = "medium",
+        split: str = "train",
+        action_type: str = "increment",
+        max_episode_steps: int = 200,
+        observation_options: dict[str, Any] | None = None,
+        **overrides: Any,
     ) -> None:
         setup = env_setup(
             stage, mode, split, action_type, max_episode_steps, observation_options, overrides
@@ -103,14 +103,14 @@ class OpsVectorEnv(_BatchCore, VectorEnv):
         self.num_envs = int(num_envs)
         self._setup(
             self.num_envs,
+            seed,
             stage,
             mode,
             split,
             action_type,
             max_episode_steps,
-            seed,
             observation_options,
-            overrides,
+            **overrides,
         )
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -189,29 +189,10 @@ def _make_sb3_class():
     class OpsSb3VecEnv(_BatchCore, VecEnv):
         """stable-baselines3 ``VecEnv`` of ``num_envs`` stackers on one batched simulation."""
 
-        def __init__(
-            self,
-            num_envs: int = 8,
-            stage: int = 5,
-            mode: str = "medium",
-            split: str = "train",
-            action_type: str = "increment",
-            max_episode_steps: int = 200,
-            seed: int | None = None,
-            observation_options: dict[str, Any] | None = None,
-            **overrides: Any,
-        ) -> None:
-            self._setup(
-                int(num_envs),
-                stage,
-                mode,
-                split,
-                action_type,
-                max_episode_steps,
-                seed,
-                observation_options,
-                overrides,
-            )
+        def __init__(self, num_envs: int = 8, seed: int | None = None, **kwargs: Any) -> None:
+            """Arguments as OpsVectorEnv (stage, mode, split, action_type, max_episode_steps,
+            observation_options, OpsConfig overrides)."""
+            self._setup(int(num_envs), seed, **kwargs)
             super().__init__(int(num_envs), self.single_observation_space, self.single_action_space)
             self._actions = None
 
