@@ -1,62 +1,247 @@
-"""benchmark: a tiny grid through the real train and evaluate command lines; resumable."""
+"""benchmark and report: the smoke profile end to end, resume after an interruption, SIGINT and
+SIGTERM from a script, Ray, and the committed results reproduced by ``report``."""
 
 from __future__ import annotations
 
+import csv
 import json
+import os
+import shutil
+import signal
 import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
+from ops_controller_ros.controllers import CONTROLLERS
 from ros_testing import executable
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = pytest.mark.timeout(300)
+
+ROOT = Path(__file__).resolve().parents[2]
+COMMITTED = ROOT / "docs" / "results" / "n5_quick"
+FILES = (
+    "table1.md",
+    "table1.csv",
+    "fig7_training.png",
+    "fig8_control.png",
+    "fig9_stages.png",
+    "fig10_convergence.png",
+    "fig11_transfer.png",
+    "fig17_traces.png",
+)
 
 
-def bench(out, timesteps, *extra):
-    cmd = [
-        *executable("ops_gym_bridge", "benchmark"),
-        "--stage",
-        "2",
-        "--algos",
-        "sac",
-        "--modes",
-        "easy",
-        "--seeds",
-        "1",
-        "--timesteps",
-        str(timesteps),
-        "--eval-seeds",
-        "0",
-        "--eval-episodes",
-        "2",
+def bench_cmd(out, *extra) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "ops_gym_bridge.benchmark",
+        "--profile",
+        "smoke",
         "--out",
         str(out),
-        "--hyperparams",
-        "learning_starts=100",
-        "net_arch=[16,16]",
-        "batch_size=32",
+        "--status-every",
+        "2",
         *extra,
     ]
+
+
+def run_bench(out, *extra, timeout=240):
     return subprocess.run(
-        cmd, capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL
+        bench_cmd(out, *extra),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
     )
 
 
-def test_benchmark_grid_table_and_resume(tmp_path):
-    out = tmp_path / "grid"
-    done = bench(out, 300)
+def stored(out) -> dict[str, float]:
+    """run id -> mtime of its run.json."""
+    return {p.parent.name: p.stat().st_mtime for p in Path(out).glob("runs/*/run.json")}
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    out = tmp_path_factory.mktemp("smoke")
+    done = run_bench(out, "--detector", "total")
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "[benchmark] (1/1) sac easy seed 1: test P_N/P_max" in done.stdout
-    table = (out / "results.md").read_text()
-    assert "| SAC | easy | 1 |" in table and "Stage 2, 300 training steps" in table
-    (rec,) = json.loads((out / "results.json").read_text())
-    assert rec["timesteps"] == 300 and 0.0 <= rec["test_final_power"] <= 1.0
-    # Same command again: nothing to train or evaluate, same numbers.
-    again = bench(out, 300)
-    assert again.returncode == 0, again.stderr
-    assert "training started" not in again.stdout + again.stderr
-    assert json.loads((out / "results.json").read_text())[0] == rec
-    # More steps: the run continues from where it stopped.
-    more = bench(out, 500)
-    assert more.returncode == 0, more.stderr
-    assert "resuming at step 300" in more.stdout
-    assert json.loads((out / "results.json").read_text())[0]["timesteps"] == 500
+    return out, done
+
+
+def test_smoke_profile_writes_every_table_and_figure(smoke, tmp_path):
+    out, done = smoke
+    n = 11 + 3 * len(CONTROLLERS)  # 9 (mode, algo) + 2 (N = 1) + one per controller and mode
+    assert f"{n}/{n} runs done" in done.stdout and "time left" in done.stdout
+    # Every registered no-training controller is a row; every stored run is complete.
+    runs = stored(out)
+    assert {"n2_easy_spgd", "n2_hard_td3_s0", "n1_hard_sac_s0"} <= set(runs)
+    assert not list((out / "work").iterdir())
+    for rid in runs:
+        d = out / "runs" / rid
+        assert (d / "evaluation.json").exists()
+        if json.loads((d / "run.json").read_text())["spec"]["kind"] == "train":
+            assert (d / "model.zip").exists() and (d / "training.csv").exists()
+            assert json.loads((d / "metadata.json").read_text())["config"]["detector"] == "total"
+    rep = subprocess.run(
+        [*executable("ops_gym_bridge", "report"), str(out), "--out", str(tmp_path / "r")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert rep.returncode == 0, rep.stdout + rep.stderr
+    for name in FILES:
+        assert (tmp_path / "r" / name).stat().st_size > 100, name
+    rows = list(csv.DictReader((tmp_path / "r" / "table1.csv").read_text().splitlines()))
+    assert {r["controller"] for r in rows} == {"ppo", "td3", "sac", *CONTROLLERS}
+    assert {(r["mode"], r["environment"]) for r in rows} == {
+        (m, e) for m in ("easy", "medium", "hard") for e in ("training", "testing")
+    }
+    # Nothing to do the second time.
+    again = run_bench(out, "--detector", "total")
+    assert again.returncode == 0 and f"{n} already stored" in again.stdout
+    assert "start " not in again.stdout
+    # Another detector in the same directory is refused.
+    other = run_bench(out, "--detector", "polarizer")
+    assert other.returncode == 2 and "--detector total" in other.stderr
+
+
+def _wait_for(pred, timeout, proc=None):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        if proc is not None and proc.poll() is not None:
+            return False
+        time.sleep(0.2)
+    return False
+
+
+def test_interrupted_after_first_run_redoes_nothing(tmp_path):
+    out = tmp_path / "b"
+    args = ["--algos", "td3", "--modes", "easy", "--seeds", "0", "1", "--controllers"]
+    args += ["--extra-stages", "--jobs", "1", "--timesteps", "1500", "--save-every", "500"]
+    proc = subprocess.Popen(bench_cmd(out, *args), stdout=subprocess.PIPE, text=True)
+    first = out / "runs" / "n2_easy_td3_s0" / "run.json"
+    assert _wait_for(first.exists, 200, proc), "first run never finished"
+    # The second run starts and saves once, then the benchmark is interrupted.
+    second = out / "work" / "n2_easy_td3_s1" / "model.zip"
+    _wait_for(second.exists, 60, proc)
+    proc.send_signal(signal.SIGINT)
+    text = proc.communicate(timeout=120)[0]
+    assert proc.returncode == 130, text
+    before = stored(out)
+    assert list(before) == ["n2_easy_td3_s0"]
+    again = run_bench(out, *args)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "start n2_easy_td3_s0" not in again.stdout
+    assert "1 already stored" in again.stdout
+    assert stored(out)["n2_easy_td3_s0"] == before["n2_easy_td3_s0"]
+    assert set(stored(out)) == {"n2_easy_td3_s0", "n2_easy_td3_s1"}
+    if second.parent.exists() or "(resuming)" in again.stdout:
+        log = (out / "logs" / "n2_easy_td3_s1.log").read_text()
+        assert "resuming at step" in log
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # A zombie is dead for our purpose.
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_stops_every_run_saves_and_resumes(tmp_path, sig):
+    out = tmp_path / "b"
+    base = ["--algos", "sac", "--modes", "easy", "--seeds", "0", "1", "--controllers"]
+    base += ["--extra-stages", "--jobs", "2", "--save-every", "100000"]
+    proc = subprocess.Popen(
+        bench_cmd(out, *base, "--timesteps", "50000"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    works = [out / "work" / f"n2_easy_sac_s{s}" for s in (0, 1)]
+    ok = _wait_for(lambda: all((w / "progress.json").exists() for w in works), 150, proc)
+    assert ok, "runs did not start training"
+    pids = [int((w / "worker.pid").read_text()) for w in works]
+    proc.send_signal(sig)
+    text = proc.communicate(timeout=150)[0]
+    assert proc.returncode == 130, text
+    assert "stopping 2 run(s)" in text
+    # Every run stopped (none left training on its own) and saved its model.
+    assert _wait_for(lambda: not any(_alive(p) for p in pids), 10)
+    steps = []
+    for w in works:
+        assert (w / "model.zip").exists() and (w / "replay_buffer.pkl").exists()
+        state = json.loads((w / "state.json").read_text())
+        assert state["timesteps"] >= 1000
+        steps.append(state["timesteps"])
+    assert not stored(out)
+    # The next start resumes both from where they stopped (a budget they have already reached:
+    # evaluation only, fast).
+    again = run_bench(out, *base, "--timesteps", "1000")
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert again.stdout.count("(resuming)") == 2
+    for s, n in zip((0, 1), steps, strict=True):
+        rec = json.loads((out / "runs" / f"n2_easy_sac_s{s}" / "run.json").read_text())
+        assert rec["timesteps"] == n
+
+
+def test_ray_smoke(tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    done = run_bench(
+        out,
+        "--ray-address",
+        "local",
+        "--jobs",
+        "2",
+        "--algos",
+        "td3",
+        "--modes",
+        "easy",
+        "hard",
+        "--extra-stages",
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "on Ray (local)" in done.stdout
+    ctl = {f"n2_{m}_{c}" for m in ("easy", "hard") for c in CONTROLLERS}
+    assert set(stored(out)) == {*ctl, "n2_easy_td3_s0", "n2_hard_td3_s0"}
+
+
+def _committed_runs() -> list[str]:
+    try:
+        files = subprocess.run(
+            ["git", "ls-files", "docs/results/n5_quick/runs"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.split()
+    except (OSError, subprocess.CalledProcessError):
+        files = []
+    if not files:
+        return sorted(p.name for p in (COMMITTED / "runs").iterdir())
+    return sorted({Path(f).parts[4] for f in files})
+
+
+@pytest.mark.skipif(not (COMMITTED / "table1.csv").exists(), reason="no committed results")
+def test_report_reproduces_committed_table1(tmp_path):
+    runs = tmp_path / "n5" / "runs"
+    runs.mkdir(parents=True)
+    for rid in _committed_runs():
+        src = COMMITTED / "runs" / rid
+        if (src / "run.json").exists():
+            shutil.copytree(src, runs / rid, ignore=shutil.ignore_patterns("model.zip"))
+    from ops_gym_bridge.report import write_report
+
+    write_report(tmp_path / "n5", tmp_path / "out")
+    assert (tmp_path / "out" / "table1.csv").read_text() == (COMMITTED / "table1.csv").read_text()
