@@ -391,7 +391,7 @@ def convergence_step(training: np.ndarray | None, window: int = 20) -> float | N
 def fig10(runs, path: Path) -> None:
     plt = _plt()
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))
-    any_ = False
+    any_ = have_conv = False
     for k, algo in enumerate(("td3", "sac")):
         by_stage = _hard_train(runs, algo)
         if not by_stage:
@@ -411,9 +411,16 @@ def fig10(runs, path: Path) -> None:
             xs, [np.mean(f) for f in fin], [np.std(f) for f in fin], fmt="o-", capsize=3,
             color=COLORS[algo], label=f"{algo.upper()} (seeds per N: {ns})",
         )  # fmt: skip
+        have_conv = have_conv or any(conv)
         cm = [np.mean(c) if c else np.nan for c in conv]
         cs = [np.std(c) if c else np.nan for c in conv]
         b.errorbar(xs, cm, cs, fmt="s-", capsize=3, color=COLORS[algo], label=algo.upper())
+    stages = sorted({st for algo in ("td3", "sac") for st in _hard_train(runs, algo)})
+    if any_ and not have_conv:
+        _empty(b, "training curves too short to tell")
+    for ax in (a, b):
+        if stages:
+            ax.set_xticks(stages)
     a.set_title("(a) final P_N, hard mode, testing environment", fontsize=10)
     a.set_ylabel("P_N / P_max")
     a.set_ylim(0, 1.05)
