@@ -20,6 +20,7 @@ setup(
         "console_scripts": [
             "spgd = ops_controller_ros.spgd_node:main",
             "policy = ops_controller_ros.policy_node:main",
+            "tracker = ops_controller_ros.tracker_node:main",
         ],
     },
 )
