@@ -105,16 +105,21 @@ def plan(args) -> list[dict[str, Any]]:
     """The runs of the benchmark, cheapest and most informative first: the controllers, then
     every (mode, algo) cell for seed 0, then seed 1, ...; the extra stages last."""
     prof = PROFILES[args.profile]
+    evaluation = dict(prof["eval"])
+    if args.eval_seeds:
+        evaluation["seeds"] = list(args.eval_seeds)
+    if args.eval_episodes:
+        evaluation["episodes"] = int(args.eval_episodes)
     common = {
         "detector": args.detector,
         "episode_steps": prof["episode_steps"],
-        "eval": prof["eval"],
+        "eval": evaluation,
         "save_every": args.save_every,
     }
     modes = args.modes or prof["modes"]
     algos = args.algos or prof["algos"]
     seeds = prof["seeds"] if args.seeds is None else args.seeds
-    stage = prof["stage"]
+    stage = args.stage or prof["stage"]
     specs: list[dict[str, Any]] = []
     for name in args.controllers if args.controllers is not None else CONTROLLERS:
         for mode in modes:
@@ -444,6 +449,7 @@ def build_parser():
         several=("mode",),
         include=("mode", "detector"),
     )
+    p.add_argument("--stage", type=int, help="stages N of Table 1 (default: the profile's)")
     p.add_argument("--algos", nargs="+", choices=ALGOS, help="(default: the profile's)")
     p.add_argument("--seeds", type=int, nargs="+", help="training seeds (default: the profile's)")
     p.add_argument(
@@ -459,6 +465,8 @@ def build_parser():
         help="hard-mode stages besides the profile's for Figures 9/10 (default: the profile's)",
     )
     p.add_argument("--timesteps", type=int, help="training steps of every run (overrides)")
+    p.add_argument("--eval-seeds", type=int, nargs="+", help="evaluation seeds (overrides)")
+    p.add_argument("--eval-episodes", type=int, help="episodes per evaluation seed (overrides)")
     cli_args.add_key_value_argument(
         p, "--hyperparams", help="overrides passed to every training run"
     )
