@@ -477,14 +477,20 @@ def trace_time_axis_ns(num_slots: int, samples_per_slot: int, pulse_spacing_fs: 
 
 def power_to_reward(power, p_min: float = 0.0) -> np.ndarray:
     """Eq. (3) of the paper with normalized P: -(P - 1)^2 / (P_min - 1)^2 (the one reward
-    formula: the simulation, the env and the nodes all use it). float64, shape of ``power``."""
-    p = np.asarray(power, dtype=np.float64)
+    formula: the simulation, the envs and the nodes all use it). Shape of ``power``."""
+    scale = 1.0 / (p_min - 1.0) ** 2
+    if type(power) is np.ndarray and power.shape == (1,):
+        x = 1.0 - float(power[0])  # one env: Python floats (fewer numpy calls per step)
+        return np.array([-(x * x) * scale])
+    p = np.asarray(power)
+    if p.dtype.kind != "f":
+        p = p.astype(np.float64)
     if p.ndim == 0:
-        return np.float64(-((float(p) - 1.0) ** 2) / (p_min - 1.0) ** 2)
+        return np.float64(-((1.0 - float(p)) ** 2) * scale)
     reward = np.subtract(p, 1.0)
     np.multiply(reward, np.subtract(1.0, p), out=reward)  # -(1 - P)^2
-    if p_min != 0.0:
-        reward /= (p_min - 1.0) ** 2
+    if scale != 1.0:
+        reward *= scale
     return reward
 
 
