@@ -284,7 +284,7 @@ def _curves(rs: list[dict], split: str, key: str = "splits", mode: str | None = 
         return None
     if rs[0]["kind"] == "controller":
         e = rs[0]["eval"][key][mode] if mode else rs[0]["eval"][key][split]
-        return np.array(e["curve_mean"]), np.array(e["curve_std"]), 1
+        return np.array(e["curve_mean"]), np.array(e["curve_std"]), len(e["final_power_per_seed"])
     cs = []
     for r in rs:
         e = r["eval"][key].get(mode) if mode else r["eval"][key][split]
@@ -313,7 +313,8 @@ def fig8(runs, path: Path, modes) -> None:
             m, s, n = c
             color = COLORS.get(name, f"C{i + 3}")
             style = "--" if rs[0]["kind"] == "controller" else "-"
-            ax.plot(np.arange(m.size), m, style, color=color, label=f"{name.upper()} (n={n})")
+            what = "eval seeds" if rs[0]["kind"] == "controller" else "n"
+            ax.plot(np.arange(m.size), m, style, color=color, label=f"{name.upper()} ({what}={n})")
             ax.fill_between(np.arange(m.size), m - s, m + s, color=color, alpha=0.15)
             any_ = True
         if not any_:
@@ -559,7 +560,7 @@ def run(argv: list[str] | None = None) -> int:
         print(f"[report] error: {root} is not a directory", file=sys.stderr)
         return 2
     written = write_report(root, Path(args.out))
-    print((Path(args.out) / "table1.md").read_text())
+    print((Path(args.out) / "table1.md").read_text(), flush=True)
     print(f"[report] wrote {', '.join(str(p) for p in written)}")
     return 0
 
