@@ -53,7 +53,7 @@ class TrackerParams:
     iterations: int = 12  # LM iterations of a global refinement
     track_iterations: int = 3  # Gauss-Newton iterations of the filter per reading
     walk_sigma_cycles: float = 0.001  # assumed random walk of the delays per step
-    drift_gain: float = 0.1  # smoothing of the drift estimate (0: no drift feed-forward)
+    drift_gain: float = 0.05  # smoothing of the drift estimate (0: no drift feed-forward)
     residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
     misses: int = 3  # bad fits in a row before re-acquiring
