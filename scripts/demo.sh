@@ -48,8 +48,10 @@ ros2 run ops_controller_ros spgd --ros-args -p seed:=7 -p log_period_s:=0.1 \
 pids+=($!)
 wait_for_line "$OUT/spgd.log" "closing the loop" 30
 sleep "$SECONDS_TO_RUN"
-grep -o "iteration .*" "$OUT/spgd.log" | head -n 8 | sed "s/^/[demo] /"
-echo "[demo] ... (all lines in $OUT/spgd.log)"
+grep -o "iteration .*" "$OUT/spgd.log" | head -n 4 | sed "s/^/[demo] /"
+echo "[demo] ..."
+grep -o "iteration .*" "$OUT/spgd.log" | tail -n 3 | sed "s/^/[demo] /"
+echo "[demo] (all lines in $OUT/spgd.log)"
 
 stop_all
 trap - EXIT

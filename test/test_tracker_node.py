@@ -43,7 +43,7 @@ def test_tracker_locks_a_medium_n5_stacker_within_10_s(procs, observer, lockstep
         what="P_N/P_max >= 0.95 over the last 10 readings within 10 s of the tracker's start",
     )
     assert time.monotonic() - started <= 10.0
-    tracker.wait_for(r"P_N/P_max = 0\.9\d+ \(locked\)", timeout=10)
+    tracker.wait_for(r"reading \d+ \(locked\): P_N/P_max = 0\.9", timeout=10)
     tracker.signal(signal.SIGTERM)
     assert tracker.wait_exit(15) == 0  # a clean exit on SIGTERM
     assert_no_traceback(tracker.output)

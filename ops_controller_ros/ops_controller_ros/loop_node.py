@@ -1,0 +1,170 @@
+"""The closed loop every controller node runs: a Node that drives a controller of
+:mod:`ops_controller_ros.controllers` against a simulator (or rig) over the ``ops/`` topics.
+
+Pairing of readings with set-points: the simulator publishes ``ops/delays`` (the set-points of a
+step), then ``ops/intensity`` and ``ops/power``. After sending a command the node waits for a
+delays message equal to it (:class:`CommandTracker`); only a power reading that arrives while the
+latest delays message matches the command is used, with the trace of that same step, so a reading
+never predates its command. The stage count (and the trace's samples per slot) come from the
+messages. If no matching reading arrives within ``timeout_s`` (simulator slow, restarted or gone)
+the command is sent again; a simulator that comes back with another stage restarts the controller
+from its set-points. A lockstep simulator whose first trace was missed is asked for a step at its
+present set-points.
+
+Subclasses declare their own parameters and build the controller (:meth:`build_controller`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from ops_sim_ros.node_params import ParamSpec, declare_all
+from ops_sim_ros.observation import pulse_energies_from_trace
+from ops_sim_ros.ros_interface import (
+    QOS_RELIABLE,
+    QOS_STATE,
+    TOPIC_DELAY_CMD,
+    TOPIC_DELAYS,
+    TOPIC_INTENSITY,
+    TOPIC_POWER,
+    float_array_msg,
+    trace_from_msg,
+)
+from rclpy.node import Node
+from std_msgs.msg import Float32, Float32MultiArray
+
+from . import controller_params
+from .command_tracker import CommandTracker
+
+LOOP_PARAMS = [
+    ParamSpec(
+        "rate_hz", 0.0, "largest command rate; 0: as fast as readings arrive", low=0.0, high=1e6
+    ),
+    controller_params.TIMEOUT,
+    ParamSpec("seed", -1, "random seed of the controller; -1 draws one", low=-1, high=2**31 - 1),
+    controller_params.LOG_PERIOD,
+]
+
+
+class ControllerLoopNode(Node):
+    """Closes the loop with the controller a subclass builds (see the module docstring)."""
+
+    def __init__(self, node_name: str, params: list[ParamSpec]):
+        super().__init__(node_name)
+        v = declare_all(self, [*params, *LOOP_PARAMS])
+        self.values = v
+        self.seed = None if v["seed"] < 0 else v["seed"]
+        self._min_period = 1.0 / v["rate_hz"] if v["rate_hz"] > 0 else 0.0
+        self._log_period = v["log_period_s"]
+        self.ctrl = None
+        self.readings = 0
+        self._commands = CommandTracker(v["timeout_s"])
+        self._trace = None  # (flat trace, samples per slot) of the latest ops/intensity
+        self._delays = None  # the latest ops/delays
+        self._next_allowed = 0.0
+        self._last_reading_at = float("-inf")
+
+        # Delays first: when several are ready the executor takes them in creation order.
+        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
+        self.create_subscription(
+            Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_RELIABLE
+        )
+        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
+        self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
+        self.create_timer(0.05, self._watchdog)
+        self.create_timer(self._log_period, self._log_progress)
+        self.get_logger().info(
+            f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)}"
+        )
+
+    # ------------------------------------------------------------------ subclass hooks
+    def build_controller(self, delays: np.ndarray, samples_per_slot: int):
+        """The controller for a simulator with these set-points (its stage) and trace layout,
+        or None when it cannot be built (say why in the log)."""
+        raise NotImplementedError
+
+    def progress(self) -> str:
+        """The start of the progress log line (before ``: P_N/P_max = ...``)."""
+        return f"reading {self.readings}"
+
+    # ------------------------------------------------------------------ loop
+    def _send(self):
+        command = self._commands.sent(self.ctrl.command(), time.monotonic())
+        self._pub_cmd.publish(float_array_msg(command))
+
+    def _start(self):
+        stage = self._delays.size
+        if self.ctrl is not None:
+            self.get_logger().warning(
+                f"simulator now has {stage} stages (was {self.ctrl.stage}): restarting"
+            )
+        self.ctrl = self.build_controller(self._delays, self._trace[1])
+        if self.ctrl is None:
+            return
+        self.get_logger().info(f"simulator found: {stage} stages; closing the loop")
+        self._send()
+
+    def _on_delays(self, msg: Float32MultiArray):
+        delays = np.asarray(msg.data, dtype=np.float64)
+        if delays.size == 0 or not np.all(np.isfinite(delays)):
+            return
+        self._delays = delays
+        if self.ctrl is None or self.ctrl.stage != delays.size:
+            if self._trace is not None:  # the trace tells the samples per slot
+                self._start()
+            return
+        self._commands.on_setpoints(delays)
+
+    def _on_intensity(self, msg: Float32MultiArray):
+        self._trace = trace_from_msg(msg)
+        if self.ctrl is None and self._delays is not None:
+            self._start()
+
+    def _on_power(self, msg: Float32):
+        if self.ctrl is None or not self._commands.matched or not np.isfinite(msg.data):
+            return
+        trace, samples = self._trace
+        energies = pulse_energies_from_trace(trace, samples)
+        if energies.size != 2**self.ctrl.stage - 1:
+            return  # a trace of another stage (the simulator is restarting)
+        self.ctrl.observe(float(msg.data), energies)
+        self._commands.answered()
+        self.readings += 1
+        now = time.monotonic()
+        self._last_reading_at = now
+        if now >= self._next_allowed:
+            self._next_allowed = now + self._min_period
+            self._send()
+
+    def _watchdog(self):
+        now = time.monotonic()
+        if self.ctrl is None:
+            if self._delays is not None and self._trace is None and now >= self._next_allowed:
+                # A lockstep simulator published its trace before we listened: ask for a step
+                # at the present set-points (a command that moves nothing).
+                self._next_allowed = now + self._commands.timeout_s
+                self._pub_cmd.publish(float_array_msg(self._delays))
+            return
+        if self._commands.pending is None:
+            if now >= self._next_allowed:  # rate-limited: the next command is due
+                self._next_allowed = now + self._min_period
+                self._send()
+        elif self._commands.overdue(now):
+            self.get_logger().warning(
+                "no reading for the last command: re-sending (simulator slow or restarted?)",
+                throttle_duration_sec=5.0,
+            )
+            self._send()
+
+    def _log_progress(self):
+        if self.ctrl is None or not self.readings:
+            return
+        silent_s = time.monotonic() - self._last_reading_at
+        if silent_s > max(self._commands.timeout_s, self._log_period):
+            # The simulator (or rig) is gone or stalled: the last power is no longer current.
+            self.get_logger().info(
+                f"{self.progress()}: no reading for {silent_s:.1f} s (waiting for the simulator)"
+            )
+            return
+        self.get_logger().info(f"{self.progress()}: P_N/P_max = {self.ctrl.last_power:.4f}")
