@@ -13,17 +13,21 @@ it fits x to the last ``window`` readings, taken at different set-points, by Lev
 in units of optical cycles, and then commands u = -(x + mu) (the stacking point, with the drift
 fed forward) plus a small known excursion.
 
-* **Acquire** (no estimate, or the last fit did not explain the readings): excursions of
-  ``acquire_dither_cycles`` with random signs around the present set-points; a global search
-  scores ``candidates`` random delay vectors over one period per stage against the window and
-  refines the ``refine`` best. The estimate is accepted when its residual is within
-  ``residual_tolerance`` (plus the expected detector noise); otherwise the controller keeps
-  dithering and searches again (it never moves on an estimate it does not trust).
-* **Track**: each reading re-fits from the prediction (a few cheap iterations); the excursion is
-  ``hold_dither_cycles`` (each stage in turn, alternating sign) so the window stays diverse and the
-  sign of a small error stays visible; mu is a smoothed per-step difference of the estimates.
-  A fit whose residual is too large ``misses`` times in a row, or a jump of the readings, sends
-  the controller back to acquisition.
+* **Acquire** (no estimate): excursions of ``acquire_dither_cycles`` with random signs around the
+  present set-points; once ``window`` readings are in, a global search scores ``candidates``
+  random delay vectors over one period per stage against them and refines the ``refine`` best
+  (with each stage's drift as well where a static fit does not explain the window). The estimate
+  is accepted only when its residual is within ``residual_tolerance`` (plus the expected detector
+  noise); otherwise the controller keeps its set-points, keeps dithering and searches again (it
+  never moves on an estimate it does not trust).
+* **Track**: each reading re-fits the window from the prediction (a few LM iterations); the
+  excursion is ``hold_dither_cycles`` on one stage at a time, alternating in sign, so the window
+  stays diverse and the sign of a small error stays visible; mu is a smoothed per-step difference
+  of the estimates (``drift_gain``).
+* **Recover**: a fit that does not explain the readings (a knot of the drift, a jump) switches to
+  acquisition-sized excursions around the prediction; after ``recover_readings`` readings the
+  errors and the drift are re-fitted locally to them (from the present drift, no drift, and each
+  stage's drift reversed); if that fails for a whole window, a global acquisition follows.
 
 Assumptions, stated: the landscape is periodic in each delay with the optical period (the envelope
 walk-off of a few cycles against a pulse of hundreds of fs is ignored), the random walk of the
@@ -51,13 +55,11 @@ class TrackerParams:
     candidates: int = 2048  # random delay vectors scored by the global search
     refine: int = 8  # best candidates refined by Levenberg-Marquardt
     iterations: int = 12  # LM iterations of a global refinement
-    track_iterations: int = 3  # Gauss-Newton iterations of the filter per reading
-    walk_sigma_cycles: float = 0.001  # assumed random walk of the delays per step
+    track_iterations: int = 3  # LM iterations per reading while tracking
     drift_gain: float = 0.05  # smoothing of the drift estimate (0: no drift feed-forward)
     residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
-    misses: int = 3  # bad fits in a row before re-acquiring
-    window_track: bool = True  # track by re-fitting the window instead of the filter
+    recover_readings: int = 4  # readings after a failed fit before a local re-fit
     acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
 
     def __post_init__(self):
@@ -69,11 +71,10 @@ class TrackerParams:
             ("refine", 1 <= self.refine <= self.candidates, "in [1, candidates]"),
             ("iterations", self.iterations >= 1, ">= 1"),
             ("track_iterations", self.track_iterations >= 1, ">= 1"),
-            ("walk_sigma_cycles", self.walk_sigma_cycles > 0, "> 0"),
             ("drift_gain", 0 <= self.drift_gain <= 1, "in [0, 1]"),
             ("residual_tolerance", self.residual_tolerance > 0, "> 0"),
             ("detector_noise", self.detector_noise >= 0, ">= 0"),
-            ("misses", self.misses >= 1, ">= 1"),
+            ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
         )
         for name, ok, allowed in checks:
             if not ok:
@@ -114,7 +115,7 @@ class PhaseTracker:
         self.drift = np.zeros(self.stage)  # per step, cycles
         self.residual = float("nan")
         self.acquisitions = 0
-        self._bad_fits = 0
+        self._recovering = None  # readings since a fit failed, while re-locking locally
         self._tick = 0
         self.last_power = float("nan")
 
@@ -130,7 +131,10 @@ class PhaseTracker:
     def command(self) -> np.ndarray:
         """Set-points (fs) to apply now."""
         p = self.params
-        if self.estimate is None:
+        if self.estimate is None or self._recovering is not None:
+            if self.estimate is not None:  # recovering: excursions around the prediction
+                target = -(self.estimate + self.drift)
+                self._base = self._base + _wrap(target - self._base)
             signs = self._rng.choice((-1.0, 1.0), size=self.stage)
             u = self._base + p.acquire_dither_cycles * signs
         else:
@@ -154,13 +158,16 @@ class PhaseTracker:
             )
         self.last_power = float(power)
         self._tick += 1
-        self._history.append((self._last_command.copy(), y))
-        if len(self._history) < self.params.window:
-            return
-        if self.estimate is None:
+        reading = (self._last_command.copy(), y)
+        self._history.append(reading)
+        if self._recovering is not None:
+            self._recovering.append(reading)
+            self._recover()
+        elif self.estimate is not None:
+            if len(self._history) >= 3:
+                self._track()
+        elif len(self._history) == self.params.window:
             self._acquire()
-        else:
-            self._track()
 
     # ------------------------------------------------------------------ estimation
     def _window(self):
@@ -239,23 +246,16 @@ class PhaseTracker:
             x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         self.residual = float(cost[i])
         if self.residual <= self._tolerance(y):
-            self._start_filter(x[i])
+            self._start_tracking(x[i])
             self.drift = fitted_drift
             self.acquisitions += 1
-            self._bad_fits = 0
 
-    def _start_filter(self, x: np.ndarray) -> None:
-        """Start the tracking filter at the acquired estimate x (cycles)."""
+    def _start_tracking(self, x: np.ndarray) -> None:
+        """Track from the acquired estimate x (cycles)."""
         self.estimate = _wrap(x)
         self.drift = np.zeros(self.stage)
-        self._cov = np.eye(self.stage) * 0.005**2  # what a window fit leaves
 
     def _track(self) -> None:
-        if self.params.window_track:
-            return self._track_window()
-        return self._track_filter()
-
-    def _track_window(self) -> None:
         """Re-fit x to the whole window from the prediction (drift fed forward)."""
         p = self.params
         u, y, age = self._window()
@@ -263,56 +263,43 @@ class PhaseTracker:
         x, cost = self._refine(start, u, y, age, self.drift, p.track_iterations)
         self.residual = float(cost[0])
         if self.residual > self._tolerance(y):
-            self._bad_fits += 1
-            if self._bad_fits >= p.misses:
-                self.estimate = None
-                self._history.clear()
-                return
-        else:
-            self._bad_fits = 0
+            # The readings left the model (a knot of the drift, a jump): re-lock locally with
+            # larger known excursions around the prediction.
+            self.estimate = _wrap(self.estimate + self.drift)
+            self._recovering = []
+            return
         step = _wrap(x[0] - self.estimate)
         self.drift = (1.0 - p.drift_gain) * self.drift + p.drift_gain * step
         self.estimate = _wrap(x[0])
 
-    def _track_filter(self) -> None:
-        """One iterated extended Kalman filter update of x with the latest reading.
-
-        Prediction: x <- x + mu (the smoothed drift) plus the random walk. Update: Gauss-Newton
-        on |x - x_pred|^2_P + |y - f(u + x)|^2_R from the prediction; the covariance keeps what
-        the readings did not see, so a direction the readings are blind to (near the optimum a
-        reading is quadratic in the error) stays at its prediction instead of wandering. The
-        drift mu is a smoothed per-step difference of the estimates.
-        """
+    def _recover(self) -> None:
+        """A local re-fit of the errors and the drift to the readings since the fit failed,
+        from the prediction with the present drift, no drift, and each stage's drift reversed;
+        after a full window without success, a global acquisition."""
         p = self.params
         n = self.stage
-        u, y = self._history[-1]
-        x_pred = self.estimate + self.drift
-        # the walk, plus what the drift estimate may be wrong by
-        q = p.walk_sigma_cycles**2 + (p.drift_gain * np.abs(self.drift)) ** 2
-        cov = self._cov + np.eye(n) * q
-        cov_inv = np.linalg.inv(cov)
-        r_var = max(p.detector_noise, 1e-4) ** 2
-        h = 1e-3
-        steps = np.concatenate([np.zeros((1, n)), h * np.eye(n)])
-        x = x_pred.copy()
-        for _ in range(p.track_iterations):
-            pred = self._predict(x + steps, u[None], np.zeros(1), np.zeros(n))[:, 0]
-            resid = y - pred[0]
-            jac = ((pred[1:] - pred[:1]) / h).T  # (S + 1, N)
-            a = cov_inv + jac.T @ jac / r_var
-            b = jac.T @ resid / r_var - cov_inv @ (x - x_pred)
-            x = x + np.clip(np.linalg.solve(a, b), -0.1, 0.1)
-        self._cov = np.linalg.inv(a)
-        final = self._predict(x[None], u[None], np.zeros(1), np.zeros(n))[0, 0]
-        self.residual = float(np.mean((y - final) ** 2))
-        if self.residual > self._tolerance(y):
-            self._bad_fits += 1
-            if self._bad_fits >= p.misses:
-                self.estimate = None  # re-acquire from the next full window
-                self._history.clear()
-                return
-        else:
-            self._bad_fits = 0
-        step = _wrap(x - self.estimate)
-        self.drift = (1.0 - p.drift_gain) * self.drift + p.drift_gain * step
-        self.estimate = _wrap(x)
+        self.estimate = _wrap(self.estimate + self.drift)  # the prediction for this reading
+        readings = self._recovering
+        if len(readings) < p.recover_readings:
+            return
+        u = np.stack([r[0] for r in readings])
+        y = np.stack([r[1] for r in readings])
+        age = np.arange(len(u) - 1, -1, -1, dtype=np.float64)
+        drifts = [self.drift, np.zeros(n)]
+        for j in range(n):
+            d = self.drift.copy()
+            d[j] = -d[j]
+            drifts.append(d)
+        z = np.stack([np.concatenate([self.estimate, d]) for d in drifts])
+        z, cost = self._refine(z, u, y, age, None, p.iterations)
+        i = int(np.argmin(cost))
+        self.residual = float(cost[i])
+        if self.residual <= self._tolerance(y):
+            self.estimate, self.drift = _wrap(z[i, :n]), z[i, n:]
+            self._history = deque(readings, maxlen=p.window)
+            self._recovering = None
+        elif len(readings) >= p.window:
+            self._recovering = None
+            self.estimate = None
+            self._history = deque(readings[-p.window :], maxlen=p.window)
+            self._acquire()
