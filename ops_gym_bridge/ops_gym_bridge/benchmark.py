@@ -362,10 +362,16 @@ def execute(args, specs: list[dict], out: Path) -> int:
     by_id = {s["id"]: s for s in specs}
     queue = list(todo)
     failed: list[str] = []
+    attempts: dict[str, int] = {}
+    retry_at: dict[str, float] = {}
     last_line = time.monotonic()
     old = {s: signal.signal(s, _raise_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        while queue or pool.running:
+        while queue or pool.running or retry_at:
+            for rid, at in list(retry_at.items()):
+                if time.monotonic() >= at:
+                    del retry_at[rid]
+                    queue.append(by_id[rid])
             while queue and pool.free():
                 spec = queue.pop(0)
                 path = out / "specs" / f"{spec['id']}.json"
@@ -376,6 +382,8 @@ def execute(args, specs: list[dict], out: Path) -> int:
                     flush=True,
                 )
                 pool.submit(spec, path)
+            if not pool.running:  # only retries left: wait for them
+                time.sleep(1.0)
             for rid, code in pool.poll(timeout=1.0):
                 rec = read_json(out / "runs" / rid / "run.json")
                 if code == 0 and rec:
@@ -385,6 +393,17 @@ def execute(args, specs: list[dict], out: Path) -> int:
                     print(
                         f"[benchmark] done {rid}: final P_N/P_max train {fp['train']:.4f}, "
                         f"test {fp['test']:.4f} ({rec['wall_s']:.0f} s)",
+                        flush=True,
+                    )
+                elif attempts.get(rid, 0) < args.retries:
+                    # e.g. a package being edited under a long benchmark: try again later (what
+                    # the run had trained is in its work directory).
+                    attempts[rid] = attempts.get(rid, 0) + 1
+                    retry_at[rid] = time.monotonic() + args.retry_delay
+                    print(
+                        f"[benchmark] run {rid} failed (exit {code}); retry {attempts[rid]}/"
+                        f"{args.retries} in {args.retry_delay:.0f} s; see {out / 'logs' / rid}.log",
+                        file=sys.stderr,
                         flush=True,
                     )
                 else:
@@ -478,6 +497,8 @@ def build_parser():
     p.add_argument("--out", default="runs/benchmark", help="directory of the stored runs")
     p.add_argument("--save-every", type=int, default=10_000, help="steps between saves of a run")
     p.add_argument("--status-every", type=float, default=300.0, help="seconds between lines")
+    p.add_argument("--retries", type=int, default=3, help="tries again of a failed run")
+    p.add_argument("--retry-delay", type=float, default=300.0, help="seconds before a retry")
     p.add_argument("--grace", type=float, default=120.0, help="seconds a stopped run may save")
     p.add_argument("--list", action="store_true", help="print the plan and exit")
     return p
