@@ -111,3 +111,32 @@ def test_missing_or_corrupt_model_is_a_clear_error(procs, tmp_path, trained_mode
     assert runner.wait_exit(60) == 2
     assert expect in runner.output, runner.output
     assert_no_traceback(runner.output)
+
+
+def test_memory_model_closes_the_loop(procs, observer, tmp_path):
+    """A model trained with observation memory (--obs-history 2, the fast set, sb3-contrib TQC)
+    runs in the policy node against a simulator over DDS."""
+    out = tmp_path / "tqc_h2"
+    cmd = [*ros2_command(), "run", "ops_gym_bridge", "train", "--hyperparams-set", "fast"]
+    cmd += ["--algo", "tqc", "--stage", "2", "--mode", "easy", "--n-envs", "4"]
+    cmd += ["--obs-history", "2", "--timesteps", "160", "--out", str(out), "--no-progress"]
+    cmd += ["--hyperparams", "learning_starts=64", "batch_size=32", "net_arch=[16,16]"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=200)
+    assert done.returncode == 0, done.stdout + done.stderr
+    procs.ros2(
+        "run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=2", "-p", "mode:=easy", name="sim"
+    )
+    runner = policy(procs, out)
+    runner.wait_for(r"loaded TQC model for stage 2 \(easy mode, observation stage 2, 16 values")
+    runner.wait_for("history=2")
+    runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
+    first = observer.last("delays")
+    observer.wait_until(
+        lambda: (
+            observer.last("delays") is not None
+            and not np.allclose(observer.last("delays"), first or [0, 0])
+        ),
+        timeout=20,
+        what="set-points moved by the policy",
+    )
+    assert_no_traceback(runner.output)

@@ -11,11 +11,13 @@ A model directory holds::
 Metadata (``metadata.json``, ``format_version`` 1)::
 
     format_version    1
-    algo              "ppo" | "td3" | "sac"
+    algo              "ppo" | "td3" | "sac" (stable-baselines3) | "tqc" | "crossq" (sb3-contrib)
     stage, mode, split   the environment it was trained on
     action_type       "increment": actions in [-1, 1]^N times max_step_fs added to the set-points
     max_step_fs       the actuator's largest set-point change per step (fs)
-    observation_spec  ObservationSpec.to_dict() of ops_sim_ros.observation
+    observation_spec  ObservationSpec.to_dict() of ops_sim_ros.observation (``history``: the
+                      number of past observations and actions in each observation; 0 or absent:
+                      none, the paper's observation)
     observation_shape, action_shape   shapes of the spaces (lists of ints)
     config            OpsConfig.to_dict() of the training environment
     normalization     null, or {"obs_mean": [...], "obs_var": [...], "clip_obs": float,
@@ -42,7 +44,10 @@ import numpy as np
 FORMAT_VERSION = 1
 MODEL_FILE = "model.zip"
 METADATA_FILE = "metadata.json"
-ALGOS = ("ppo", "td3", "sac")
+#: stable-baselines3's algorithms, then sb3-contrib's (TQC, CrossQ).
+SB3_ALGOS = ("ppo", "td3", "sac")
+CONTRIB_ALGOS = ("tqc", "crossq")
+ALGOS = SB3_ALGOS + CONTRIB_ALGOS
 ACTION_TYPES = ("increment",)
 REQUIRED_KEYS = {
     "algo": str,
@@ -59,16 +64,23 @@ class PolicyLoadError(RuntimeError):
 
 
 def algo_class(algo: str):
-    """The stable-baselines3 class for an algorithm name."""
-    import stable_baselines3 as sb3
-
-    classes = {"ppo": sb3.PPO, "td3": sb3.TD3, "sac": sb3.SAC}
-    try:
-        return classes[algo.lower()]
-    except (KeyError, AttributeError):
+    """The stable-baselines3 (or sb3-contrib) class for an algorithm name."""
+    name = str(algo).lower()
+    if name not in ALGOS:
         raise PolicyLoadError(
             f"unknown algo {algo!r} in the metadata; supported: {', '.join(ALGOS)}"
+        )
+    if name in SB3_ALGOS:
+        import stable_baselines3 as sb3
+
+        return {"ppo": sb3.PPO, "td3": sb3.TD3, "sac": sb3.SAC}[name]
+    try:
+        import sb3_contrib
+    except ImportError:
+        raise PolicyLoadError(
+            f"algo {name!r} needs sb3-contrib (pinned in requirements/python.txt; run make setup)"
         ) from None
+    return {"tqc": sb3_contrib.TQC, "crossq": sb3_contrib.CrossQ}[name]
 
 
 def library_versions() -> dict[str, str]:
@@ -79,6 +91,7 @@ def library_versions() -> dict[str, str]:
     for name, module in (
         ("torch", "torch"),
         ("stable_baselines3", "stable_baselines3"),
+        ("sb3_contrib", "sb3_contrib"),
         ("gymnasium", "gymnasium"),
     ):
         try:
@@ -290,12 +303,69 @@ def load_policy(path: str | os.PathLike, device: str = "cpu") -> LoadedPolicy:
             f"metadata malformed: observation_shape {metadata['observation_shape']} does not "
             f"match the model's {list(shape)}"
         )
+    spec = observation_spec_of(metadata, source=str(model_path.parent))
+    if (spec.dim,) != shape:
+        raise PolicyLoadError(
+            f"metadata and model disagree: the observation_spec ({spec.describe()}) gives "
+            f"observations of {spec.dim} values, the model in {model_path} takes {list(shape)}"
+        )
     if norm is not None and norm["mean"].shape != shape:
         raise PolicyLoadError(
             f"metadata malformed: normalization statistics have shape {norm['mean'].shape}, "
             f"the model's observations {shape}"
         )
     return LoadedPolicy(model=model, metadata=metadata, path=model_path.parent, _norm=norm)
+
+
+def observation_spec_of(metadata: dict, source: str = "metadata"):
+    """The :class:`~ops_sim_ros.observation.ObservationSpec` a model was trained with."""
+    from ops_sim_ros.observation import ObservationSpec
+
+    try:
+        return ObservationSpec.from_dict(dict(metadata["observation_spec"]))
+    except (TypeError, ValueError) as exc:
+        raise PolicyLoadError(
+            f"metadata malformed: {source}: observation_spec is not valid ({exc})"
+        ) from None
+
+
+class PolicyRunner:
+    """A loaded policy in a closed loop, without ROS: one reading (slot energies, P_N/P_max,
+    set-points in fs) in, one normalized action in [-1, 1]^N out.
+
+    Builds the observations with the model's own spec through the same
+    :class:`~ops_sim_ros.observation.ObservationBuilder` as the environments, so a model trained
+    with memory (``history`` > 0) gets its last observations and actions: the first reading
+    (and the first after :meth:`restart`) starts the history, every later one is pushed with the
+    action returned for the reading before. The ``ops_policy`` node runs one.
+    """
+
+    def __init__(self, loaded: LoadedPolicy) -> None:
+        from ops_sim_ros.observation import ObservationBuilder
+
+        self.policy = loaded
+        self.spec = observation_spec_of(loaded.metadata, source=str(loaded.path))
+        self._builder = ObservationBuilder(self.spec)
+        self._last_action: np.ndarray | None = None
+        self.last_observation: np.ndarray | None = None  # what the network saw last
+
+    def restart(self) -> None:
+        """The next reading starts a new history (e.g. after the simulator was reset)."""
+        self._last_action = None
+
+    def observe(self, pulse_energies, power, setpoints_fs) -> np.ndarray:
+        """The observation of a reading, as the model saw observations in training."""
+        if self._last_action is None:
+            return self._builder.reset(pulse_energies, power, setpoints_fs)
+        return self._builder.step(pulse_energies, power, setpoints_fs, self._last_action)
+
+    def act(self, pulse_energies, power, setpoints_fs) -> np.ndarray:
+        """The action (float32, [-1, 1]^N) for a reading; it is remembered for the next one."""
+        obs = self.observe(pulse_energies, power, setpoints_fs)
+        self.last_observation = obs
+        action = np.asarray(self.policy.predict(obs), dtype=np.float32).reshape(-1)
+        self._last_action = action
+        return action
 
 
 def check_stage(loaded: LoadedPolicy, sim_stage: int) -> None:

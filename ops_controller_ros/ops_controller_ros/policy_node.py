@@ -1,10 +1,12 @@
 """The learned-policy runner ``ops_policy``: a trained stable-baselines3 model closing the loop.
 
 ``ros2 run ops_controller_ros policy --ros-args -p model:=DIR`` loads ``DIR/model.zip`` and the
-metadata saved beside it by training, builds each observation with the same function as the
-in-process environment (``ops_sim_ros.observation.build_observation``) from the simulator's trace,
-power and set-points, and publishes new set-points: current set-points + action * max step (the
-only action type ``ops_controller_ros.policy_io`` loads is "increment").
+metadata saved beside it by training, builds each observation with the same builder as the
+in-process environment (``ops_sim_ros.observation.ObservationBuilder``, through
+``policy_io.PolicyRunner``; a model trained with memory gets its last observations and actions,
+the history starting at the node's first reading) from the simulator's trace, power and
+set-points, and publishes new set-points: current set-points + action * max step (the only action
+type ``ops_controller_ros.policy_io`` loads is "increment").
 
 A step's readings are used only once the set-points they report equal the last command (the
 simulator publishes ``ops/delays`` first), as in the SPGD node. A model trained for another stage
@@ -17,7 +19,7 @@ import time
 
 import numpy as np
 from ops_sim_ros.node_params import ParamSpec, declare_all
-from ops_sim_ros.observation import ObservationSpec, build_observation, pulse_energies_from_trace
+from ops_sim_ros.observation import pulse_energies_from_trace
 from ops_sim_ros.ros_interface import (
     QOS_RELIABLE,
     QOS_STATE,
@@ -36,7 +38,7 @@ from std_msgs.msg import Float32, Float32MultiArray
 
 from . import controller_params
 from .command_tracker import CommandTracker
-from .policy_io import PolicyLoadError, check_stage, load_policy
+from .policy_io import PolicyLoadError, PolicyRunner, check_stage, load_policy
 
 PARAMS = [
     ParamSpec("model", "", "trained model: the training output DIR or DIR/model.zip"),
@@ -56,10 +58,10 @@ class PolicyNode(Node):
             )
         try:
             self._policy = load_policy(v["model"])
+            self._runner = PolicyRunner(self._policy)
         except PolicyLoadError as exc:
             raise ParameterError(f"model: {exc}") from None
-        meta = self._policy.metadata
-        self._spec = ObservationSpec.from_dict(meta["observation_spec"])
+        self._spec = self._runner.spec
         self._max_step_fs = self._policy.max_step_fs  # policy_io loads increment models only
 
         self._tracker = CommandTracker(v["timeout_s"])
@@ -76,7 +78,8 @@ class PolicyNode(Node):
         self.create_timer(v["log_period_s"], self._log_progress)
         self.get_logger().info(
             f"loaded {self._policy.algo.upper()} model for stage {self._policy.stage} "
-            f"({self._policy.mode} mode) from {self._policy.path}; waiting for the simulator"
+            f"({self._policy.mode} mode, observation {self._spec.describe()}) from "
+            f"{self._policy.path}; waiting for the simulator"
         )
 
     def _on_delays(self, msg: Float32MultiArray):
@@ -107,8 +110,7 @@ class PolicyNode(Node):
                 f"the simulator's trace has {energies.shape[-1]} pulse slots, the model expects "
                 f"{self._spec.num_slots}"
             )
-        obs = build_observation(self._spec, energies, float(msg.data), self._delays)
-        action = np.asarray(self._policy.predict(obs), dtype=np.float64).reshape(-1)
+        action = self._runner.act(energies, float(msg.data), self._delays).astype(np.float64)
         command = self._delays + action * self._max_step_fs
         self._last_power = float(msg.data)
         self._steps += 1

@@ -3,7 +3,7 @@
 ``RosOpsEnv(stage=3, mode="easy")`` has the same observation and action spaces as
 ``ops_sim_ros.OpsEnv`` for the same stage and configuration (the same set-up,
 :func:`ops_sim_ros.env_setup.env_setup`), and builds its observations with the same function
-(:func:`ops_sim_ros.observation.build_observation`).
+(:class:`ops_sim_ros.observation.ObservationBuilder`, memory included).
 
 ``step`` adds the scaled action to the current set-points and sends the absolute set-points;
 ``reset`` calls ``ops/reset``. The ROS side (context, node, the lockstep protocol, waits,
@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 from ops_sim_ros.env_setup import env_setup
-from ops_sim_ros.observation import build_observation, pulse_energies_from_trace
+from ops_sim_ros.observation import ObservationBuilder, pulse_energies_from_trace
 
 from .lockstep_client import (  # noqa: F401  (the bridge's errors, importable from here)
     BridgeError,
@@ -82,6 +82,7 @@ class RosOpsEnv(gym.Env):
         self.max_episode_steps = int(max_episode_steps)
         self.namespace = namespace
         self._setpoints: np.ndarray | None = None
+        self._observations = ObservationBuilder(self.obs_spec)
         self._steps = 0
         self._closed = False
         if self.spec is None:  # direct construction: declare the nondeterminism gym.make would
@@ -108,7 +109,9 @@ class RosOpsEnv(gym.Env):
         if self._closed:
             raise BridgeError("the bridge is closed")
 
-    def _observe(self, msgs) -> tuple[np.ndarray, dict[str, Any]]:
+    def _observe(self, msgs, action=None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Observation and info of the simulator's answer; ``action``: the normalized action of
+        the step that produced it (None: a new episode)."""
         from ops_sim_ros.ros_interface import trace_from_msg
 
         intensity, power_msg, reward_msg, delays_msg = msgs
@@ -121,7 +124,10 @@ class RosOpsEnv(gym.Env):
             )
         setpoints = np.asarray(delays_msg.data, dtype=np.float64)
         power = float(power_msg.data)
-        obs = build_observation(self.obs_spec, energies, power, setpoints)
+        if action is None:
+            obs = self._observations.reset(energies, power, setpoints)
+        else:
+            obs = self._observations.step(energies, power, setpoints, action)
         self._setpoints = setpoints
         info = {
             "power": power,
@@ -131,7 +137,6 @@ class RosOpsEnv(gym.Env):
         }
         return obs, info
 
-    # ------------------------------------------------------------------ gymnasium API
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Start a new episode on the simulator. ``seed`` seeds only the bridge's own generator
@@ -155,14 +160,17 @@ class RosOpsEnv(gym.Env):
         command = command.astype(np.float32).astype(np.float64)  # what the message carries
         msgs = self.client.command(command, t0, f"step {self._steps + 1}")
         self._steps += 1
-        obs, info = self._observe(msgs)
+        obs, info = self._observe(msgs, a)
         info["step_time_s"] = time.monotonic() - t0
         truncated = self._steps >= self.max_episode_steps
         return obs, float(info["reward"]), False, truncated, info
 
     def set_setpoints(self, setpoints_fs) -> tuple[np.ndarray, dict[str, Any]]:
-        """Command absolute set-points (fs) for one step; returns (observation, info)."""
+        """Command absolute set-points (fs) for one step; returns (observation, info). With memory
+        the step is recorded as the normalized increment that it equals (clipped to [-1, 1])."""
         self._check_open()
+        if self._setpoints is None:
+            raise RuntimeError("call reset() before set_setpoints()")
         command = (
             np.clip(
                 np.asarray(setpoints_fs, dtype=np.float64).reshape(self.stage),
@@ -174,7 +182,8 @@ class RosOpsEnv(gym.Env):
         )
         t0 = time.monotonic()
         msgs = self.client.command(command, t0, "set_setpoints")
-        obs, info = self._observe(msgs)
+        action = (command - self._setpoints) / self.max_step_fs
+        obs, info = self._observe(msgs, action)
         info["step_time_s"] = time.monotonic() - t0
         return obs, info
 

@@ -24,14 +24,20 @@ def make_single_env(
     timeout_s: float = 5.0,
     episode_steps: int = EPISODE_STEPS,
     overrides: dict[str, Any] | None = None,
+    observation_options: dict[str, Any] | None = None,
 ):
-    """One gymnasium env (not wrapped)."""
+    """One gymnasium env (not wrapped). ``observation_options``: e.g. ``{"history": 4}``."""
     overrides = dict(overrides or {})
     if backend == "inprocess":
         from ops_sim_ros import OpsEnv
 
         return OpsEnv(
-            stage=stage, mode=mode, split=split, max_episode_steps=episode_steps, **overrides
+            stage=stage,
+            mode=mode,
+            split=split,
+            max_episode_steps=episode_steps,
+            observation_options=observation_options,
+            **overrides,
         )
     if backend == "ros":
         from .bridge_env import RosOpsEnv
@@ -43,13 +49,21 @@ def make_single_env(
             namespace=namespace,
             timeout_s=timeout_s,
             max_episode_steps=episode_steps,
+            observation_options=observation_options,
             **overrides,
         )
     raise ValueError(f"backend must be one of {', '.join(BACKENDS)} (got {backend!r})")
 
 
 def _batched_vec_env(
-    n_envs: int, stage: int, mode: str, split: str, episode_steps: int, seed, overrides: dict
+    n_envs: int,
+    stage: int,
+    mode: str,
+    split: str,
+    episode_steps: int,
+    seed,
+    overrides: dict,
+    observation_options: dict | None = None,
 ):
     """ops_sim_ros's batched SB3 VecEnv (one physics call for all envs), if it is available."""
     try:
@@ -73,6 +87,7 @@ def _batched_vec_env(
             split=split,
             max_episode_steps=episode_steps,
             seed=seed,
+            observation_options=observation_options,
             **overrides,
         )
     return VecMonitor(venv, info_keywords=("power",))
@@ -90,12 +105,14 @@ def make_vec_env(
     episode_steps: int = EPISODE_STEPS,
     batched: bool = True,
     overrides: dict[str, Any] | None = None,
+    observation_options: dict[str, Any] | None = None,
 ):
     """An SB3 VecEnv of ``n_envs`` monitored envs.
 
     In-process with ``n_envs > 1``: the batched vector env of ``ops_sim_ros.vec_env`` (falls back to
     a DummyVecEnv of ``OpsEnv`` if it is missing). ROS backend: one bridge per namespace.
-    ``overrides``: OpsConfig fields (e.g. ``detector``) of every env.
+    ``overrides``: OpsConfig fields (e.g. ``detector``) of every env; ``observation_options``:
+    the observation's choices (e.g. ``{"history": 4}``) of every env.
     """
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -123,6 +140,7 @@ def make_vec_env(
                         timeout_s=timeout_s,
                         episode_steps=episode_steps,
                         overrides=overrides,
+                        observation_options=observation_options,
                     ),
                     info_keywords=("power",),
                 )
@@ -133,7 +151,9 @@ def make_vec_env(
     if backend != "inprocess":
         raise ValueError(f"backend must be one of {', '.join(BACKENDS)} (got {backend!r})")
     if n_envs > 1 and batched:
-        venv = _batched_vec_env(n_envs, stage, mode, split, episode_steps, seed, overrides or {})
+        venv = _batched_vec_env(
+            n_envs, stage, mode, split, episode_steps, seed, overrides or {}, observation_options
+        )
         if venv is not None:
             return venv
     fns = [
@@ -146,6 +166,7 @@ def make_vec_env(
                     split,
                     episode_steps=episode_steps,
                     overrides=overrides,
+                    observation_options=observation_options,
                 ),
                 info_keywords=("power",),
             )

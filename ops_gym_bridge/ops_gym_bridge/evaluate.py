@@ -131,6 +131,14 @@ class Subject:
         """The configuration the simulator runs (with the --env overrides)."""
         return self.nominal_config(split, steps).replace(**self.env_overrides)
 
+    def observation_options(self) -> dict[str, Any] | None:
+        """The policy's observation choices (memory included); None for a controller."""
+        if self.policy is None:
+            return None
+        from ops_controller_ros.policy_io import observation_spec_of
+
+        return observation_spec_of(self.policy.metadata).options()
+
     def run(self, split: str, episodes: int, steps: int, seed: int) -> dict[str, np.ndarray]:
         sim = self.sim_config(split, steps)
         if self.controller is not None:
@@ -138,7 +146,8 @@ class Subject:
             return rollout_controller(
                 self.controller, self.controller_params, nominal, sim, episodes, steps, seed
             )
-        return rollout_policy(self.policy.predict, sim, episodes, steps, seed)
+        options = self.observation_options()
+        return rollout_policy(self.policy.predict, sim, episodes, steps, seed, options)
 
 
 def _parse(items: list[str], what: str) -> dict[str, Any]:
@@ -225,7 +234,7 @@ def summarize(per_seed: list[dict[str, np.ndarray]]) -> dict[str, Any]:
 
 def load_for_evaluation(model_path: str, stage: int | None):
     """(LoadedPolicy, stage) or EvaluationError for a model that cannot run on ``stage``."""
-    from ops_controller_ros.policy_io import PolicyLoadError, load_policy
+    from ops_controller_ros.policy_io import PolicyLoadError, load_policy, observation_spec_of
     from ops_sim_ros.observation import ObservationSpec
 
     try:
@@ -234,11 +243,8 @@ def load_for_evaluation(model_path: str, stage: int | None):
         raise EvaluationError(str(exc)) from None
     stage = loaded.stage if stage is None else stage
     if stage != loaded.stage:
-        spec = ObservationSpec.from_dict(loaded.observation_spec)
-        target = ObservationSpec.from_config(
-            make_config(stage=stage),
-            **{k: v for k, v in loaded.observation_spec.items() if k.startswith("include_")},
-        )
+        spec = observation_spec_of(loaded.metadata)
+        target = ObservationSpec.from_config(make_config(stage=stage), **spec.options())
         if target.dim != spec.dim:
             raise EvaluationError(
                 f"cannot evaluate a stage-{loaded.stage} model on stage {stage}: its observation "

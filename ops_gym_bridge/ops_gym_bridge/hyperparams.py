@@ -1,4 +1,13 @@
-"""Hyper-parameters: the paper's selected values (``hyperparams/<algo>.yaml``) and overrides.
+"""Hyper-parameters: named sets of defaults and ``key=value`` overrides.
+
+Sets (``train --hyperparams-set NAME``):
+
+* ``paper`` (default): the paper's selected values, ``hyperparams/<algo>.yaml`` (PPO, TD3, SAC).
+* ``fast``: ``hyperparams/fast.yaml``, for the batched simulator on a small CPU: many
+  environments, fewer gradient steps per environment step (SAC, TD3, and sb3-contrib's TQC and
+  CrossQ); its ``defaults`` block names the algorithm, the number of environments and the
+  observation memory that ``train`` uses unless the command line says otherwise (chosen by
+  measurement: ``scripts/bench_training.py``, docs/results.md).
 
 Pure: no rclpy, no torch at import. :func:`load` reads the defaults, :func:`apply_overrides`
 applies ``key=value`` strings (values parsed as YAML), :func:`sb3_kwargs` turns the flat dict
@@ -11,12 +20,28 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from ops_controller_ros.policy_io import ALGOS
+from ops_controller_ros.policy_io import ALGOS as ALL_ALGOS
 
 from .cli_args import parse_key_value
 
-__all__ = ["ALGOS", "CLI_KEYS", "apply_overrides", "load", "parse_override", "sb3_kwargs"]
+__all__ = [
+    "ALGOS",
+    "ALL_ALGOS",
+    "CLI_KEYS",
+    "SETS",
+    "apply_overrides",
+    "load",
+    "parse_override",
+    "sb3_kwargs",
+    "set_defaults",
+]
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+#: The paper's algorithms (a ``paper`` yaml each; the Table 1 benchmark runs these).
+ALGOS = ("ppo", "td3", "sac")
+#: Named hyper-parameter sets: ``paper`` (one yaml per algorithm), others one yaml each.
+SETS = ("paper", "fast")
+#: Keys of a set's ``defaults`` block (train options, not SB3 arguments).
+SET_DEFAULT_KEYS = ("algo", "n_envs", "obs_history")
 #: Keys the CLI handles itself; everything else goes to the SB3 constructor.
 CLI_KEYS = (
     "normalize_obs",
@@ -28,11 +53,44 @@ CLI_KEYS = (
 )
 
 
-def load(algo: str) -> dict[str, Any]:
-    """The default hyper-parameters of ``algo`` (a fresh dict)."""
-    if algo not in ALGOS:
-        raise ValueError(f"algo must be one of {', '.join(ALGOS)} (got {algo!r})")
-    path = HYPERPARAMS_DIR / f"{algo}.yaml"
+def load(algo: str, hp_set: str = "paper") -> dict[str, Any]:
+    """The default hyper-parameters of ``algo`` in the set ``hp_set`` (a fresh dict)."""
+    if algo not in ALL_ALGOS:
+        raise ValueError(f"algo must be one of {', '.join(ALL_ALGOS)} (got {algo!r})")
+    if hp_set == "paper":
+        if algo not in ALGOS:
+            raise ValueError(
+                f"the paper set has no {algo} (the paper trained {', '.join(ALGOS)}); "
+                f"use --hyperparams-set {' or '.join(s for s in SETS if s != 'paper')}"
+            )
+        path = HYPERPARAMS_DIR / f"{algo}.yaml"
+        data = yaml.safe_load(path.read_text())
+        if not isinstance(data, dict):
+            raise ValueError(f"{path} must hold a mapping")
+        return data
+    data = _load_set(hp_set)
+    if algo not in data or not isinstance(data[algo], dict):
+        have = [a for a in ALL_ALGOS if isinstance(data.get(a), dict)]
+        raise ValueError(f"hyper-parameter set {hp_set!r} has no {algo} (it has {', '.join(have)})")
+    return dict(data[algo])
+
+
+def set_defaults(hp_set: str = "paper") -> dict[str, Any]:
+    """The train options a set chooses (``algo``, ``n_envs``, ``obs_history``)."""
+    base = {"algo": "sac", "n_envs": 1, "obs_history": 0}
+    if hp_set == "paper":
+        return base
+    defaults = _load_set(hp_set).get("defaults") or {}
+    unknown = set(defaults) - set(SET_DEFAULT_KEYS)
+    if unknown:
+        raise ValueError(f"hyperparams/{hp_set}.yaml: unknown defaults {sorted(unknown)}")
+    return {**base, **defaults}
+
+
+def _load_set(hp_set: str) -> dict[str, Any]:
+    if hp_set not in SETS:
+        raise ValueError(f"hyper-parameter set must be one of {', '.join(SETS)} (got {hp_set!r})")
+    path = HYPERPARAMS_DIR / f"{hp_set}.yaml"
     data = yaml.safe_load(path.read_text())
     if not isinstance(data, dict):
         raise ValueError(f"{path} must hold a mapping")
@@ -78,7 +136,8 @@ def sb3_kwargs(algo: str, params: dict[str, Any], action_dim: int) -> dict[str, 
     net_arch = params.get("net_arch")
     if net_arch is not None:
         policy_kwargs = dict(kwargs.get("policy_kwargs") or {})
-        policy_kwargs["net_arch"] = list(net_arch)
+        # A list for every network, or a dict (e.g. {pi: [256, 256], qf: [512, 512]}).
+        policy_kwargs["net_arch"] = dict(net_arch) if isinstance(net_arch, dict) else list(net_arch)
         kwargs["policy_kwargs"] = policy_kwargs
     noise = params.get("action_noise")
     if noise:

@@ -35,7 +35,10 @@ def record_episodes(args, subject, path: Path) -> Path:
 
     split, seed = args.splits[0], args.seeds[0]
     env = RecordBag(
-        OpsEnv.from_config(subject.sim_config(split, args.steps)),
+        OpsEnv.from_config(
+            subject.sim_config(split, args.steps),
+            observation_options=subject.observation_options(),
+        ),
         path,
         custom_data={
             "source": "ops_gym_bridge evaluate",

@@ -70,12 +70,24 @@ def rollout_controller(
 
 
 def rollout_policy(
-    predict, sim_config, episodes: int, steps: int, seed: int
+    predict,
+    sim_config,
+    episodes: int,
+    steps: int,
+    seed: int,
+    observation_options: dict[str, Any] | None = None,
 ) -> dict[str, np.ndarray]:
-    """``episodes`` parallel episodes on ``sim_config`` with a batched ``predict(obs)``."""
+    """``episodes`` parallel episodes on ``sim_config`` with a batched ``predict(obs)``;
+    ``observation_options``: the model's observation choices (``ObservationSpec.options()``,
+    memory included; None: the default observation)."""
     from ops_sim_ros.vec_env import OpsVectorEnv
 
-    env = OpsVectorEnv.from_config(sim_config, num_envs=episodes, max_episode_steps=steps)
+    env = OpsVectorEnv.from_config(
+        sim_config,
+        num_envs=episodes,
+        max_episode_steps=steps,
+        observation_options=observation_options,
+    )
     try:
         obs, info = env.reset(seed=seed)
         power = np.empty((episodes, steps + 1))

@@ -1,8 +1,13 @@
-"""``ros2 run ops_gym_bridge train``: train PPO / TD3 / SAC on the pulse stacker.
+"""``ros2 run ops_gym_bridge train``: train PPO / TD3 / SAC (or sb3-contrib's TQC / CrossQ) on
+the pulse stacker.
 
 In-process (fast, default) or through the ROS 2 bridge against running simulators in lockstep
 mode (``--backend ros``). Defaults are the paper's selected hyper-parameters
-(``hyperparams/<algo>.yaml``), with 200-step episodes.
+(``hyperparams/<algo>.yaml``), with 200-step episodes; ``--hyperparams-set fast``
+(``hyperparams/fast.yaml``) trains on many batched environments with fewer gradient steps per
+environment step, and chooses the algorithm, ``--n-envs`` and ``--obs-history`` unless given.
+``--obs-history K`` gives the policy memory: each observation holds the last K observations and
+the actions that led to them (``ops_sim_ros.observation``; saved in the metadata).
 
 Output directory (``--out DIR``)::
 
@@ -36,7 +41,17 @@ from .envs import BACKENDS, EPISODE_STEPS, final_powers, make_vec_env
 
 EXIT_INTERRUPTED = 130
 #: What a model is: a resumed run keeps these (the command line may only repeat them).
-RUN_KEYS = ("algo", "stage", "mode", "split", "detector", "episode_steps", "n_envs")
+RUN_KEYS = (
+    "algo",
+    "stage",
+    "mode",
+    "split",
+    "detector",
+    "episode_steps",
+    "n_envs",
+    "obs_history",
+    "hyperparams_set",
+)
 
 
 class TrainError(RuntimeError):
@@ -47,7 +62,27 @@ def build_parser():
     p = cli_args.make_parser(
         "train", "Train a learned controller (stable-baselines3) for optical pulse stacking."
     )
-    p.add_argument("--algo", choices=hp.ALGOS, default="sac", help="RL algorithm")
+    p.add_argument(
+        "--algo",
+        choices=hp.ALL_ALGOS,
+        default=None,
+        help="RL algorithm (default: the hyper-parameter set's; sac for paper)",
+    )
+    p.add_argument(
+        "--hyperparams-set",
+        choices=hp.SETS,
+        default="paper",
+        help="named defaults: paper (hyperparams/<algo>.yaml, the paper's) or fast "
+        "(hyperparams/fast.yaml: many batched envs, fewer gradient steps per env step)",
+    )
+    p.add_argument(
+        "--obs-history",
+        type=int,
+        default=None,
+        metavar="K",
+        help="observation memory: the last K observations and the actions that led to them "
+        "(default: the set's; 0, the paper's memoryless observation, for paper)",
+    )
     cli_args.add_env_arguments(p)
     p.add_argument(
         "--timesteps",
@@ -62,7 +97,12 @@ def build_parser():
         default="inprocess",
         help="inprocess: simulate in this process; ros: through running simulators",
     )
-    p.add_argument("--n-envs", type=int, default=1, help="parallel environments")
+    p.add_argument(
+        "--n-envs",
+        type=int,
+        default=None,
+        help="parallel environments (default: the set's; 1 for paper)",
+    )
     p.add_argument("--out", required=True, help="output directory")
     cli_args.add_key_value_argument(
         p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
@@ -141,6 +181,7 @@ def build_metadata(
         split=args.split,
         detector=args.detector,
         max_episode_steps=args.episode_steps,
+        observation_options={"history": args.obs_history},
     )
     history = list((previous or {}).get("history", []))
     history.append(
@@ -173,6 +214,8 @@ def build_metadata(
         "seed": args.seed,
         "backend": args.backend,
         "n_envs": args.n_envs,
+        "obs_history": args.obs_history,
+        "hyperparams_set": args.hyperparams_set,
         "hyperparams": params,
         "interrupted": interrupted,
         "train_final_power_mean": float(powers.mean()) if powers.size else None,
@@ -225,7 +268,12 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
             raise TrainError(
                 f"{out} already holds a model; use --resume to continue it or choose another --out"
             )
-        params = _hyperparams(hp.load(args.algo), args)
+        _fill_set_defaults(args)
+        try:
+            base = hp.load(args.algo, args.hyperparams_set)
+        except ValueError as exc:
+            raise TrainError(str(exc)) from None
+        params = _hyperparams(base, args)
         return TrainRun(args, command_line, out, params)
     try:
         previous = read_metadata(out)
@@ -243,8 +291,30 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         setattr(args, key, previous.get(key, default))
     if "--backend" not in given and previous.get("backend"):  # may change, if asked to
         args.backend = previous["backend"]
-    params = _hyperparams(previous.get("hyperparams") or hp.load(args.algo), args)
+    if args.hyperparams_set is None:  # a model from before hyper-parameter sets
+        args.hyperparams_set = "paper"
+    if args.obs_history is None:  # ... or before observation memory
+        args.obs_history = int(previous["observation_spec"].get("history", 0))
+    _fill_set_defaults(args)
+    params = _hyperparams(
+        previous.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
+    )
     return TrainRun(args, command_line, out, params, previous)
+
+
+def _fill_set_defaults(args) -> None:
+    """Options not given take the hyper-parameter set's defaults (algo, n_envs, obs_history)."""
+    try:
+        defaults = hp.set_defaults(args.hyperparams_set)
+    except ValueError as exc:
+        raise TrainError(str(exc)) from None
+    for key, value in defaults.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
+    if args.obs_history < 0:
+        raise TrainError("--obs-history must be >= 0")
+    if args.n_envs < 1:
+        raise TrainError(f"--n-envs must be >= 1 (got {args.n_envs})")
 
 
 def _hyperparams(base: dict, args) -> dict:
@@ -271,6 +341,7 @@ def build_env(run: TrainRun) -> None:
             timeout_s=args.ros_timeout,
             episode_steps=args.episode_steps,
             overrides={"detector": args.detector},
+            observation_options={"history": args.obs_history},
         )
     except ValueError as exc:
         raise TrainError(str(exc)) from None
@@ -345,6 +416,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     print(
         f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
         f"detector={args.detector} backend={args.backend} n_envs={args.n_envs} "
+        f"obs_history={args.obs_history} hyperparams_set={args.hyperparams_set} "
         f"steps {run.start_steps} -> {total}, out={out}",
         flush=True,
     )

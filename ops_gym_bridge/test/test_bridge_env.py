@@ -283,3 +283,36 @@ def test_stalled_simulator_is_asked_again_and_the_step_succeeds(procs):
         env.step(np.zeros(3))
     finally:
         env.close()
+
+
+def test_memory_observation_over_the_bridge(sim3):
+    """history=2 through the bridge: the in-process env's spec and space; after a reset the first
+    frame in every slot with zero actions, then each new frame with the action that produced it
+    and the older ones shifted (the builder of ops_sim_ros.observation, as in-process)."""
+    env = RosOpsEnv(
+        stage=3,
+        mode="easy",
+        namespace="/bridge",
+        timeout_s=10.0,
+        observation_options={"history": 2},
+    )
+    try:
+        ref = OpsEnv(stage=3, mode="easy", observation_options={"history": 2})
+        assert env.obs_spec == ref.obs_spec and env.observation_space == ref.observation_space
+        spec = env.obs_spec
+        f, w = spec.frame_dim, spec.frame_dim + 3
+        obs, _ = env.reset()
+        assert obs in env.observation_space
+        np.testing.assert_array_equal(obs[w : w + f], obs[:f])
+        np.testing.assert_array_equal(obs[f:w], 0.0)
+        np.testing.assert_array_equal(obs[w + f :], 0.0)
+        for a in ([0.5, -0.25, 2.0], [-1.0, 0.0, 0.125]):
+            prev = obs
+            obs, _, _, _, info = env.step(np.asarray(a, np.float32))
+            np.testing.assert_array_equal(obs[f:w], np.clip(np.float32(a), -1, 1))
+            np.testing.assert_array_equal(obs[w:], prev[:w])
+            np.testing.assert_allclose(
+                obs[f - 3 : f], info["setpoints_fs"] / spec.optical_period_fs, rtol=1e-5, atol=1e-6
+            )
+    finally:
+        env.close()

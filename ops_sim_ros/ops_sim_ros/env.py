@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from .env_setup import ACTION_TYPES, config_arguments, env_setup
-from .observation import build_observation
+from .observation import ObservationBuilder
 from .simulation import BatchedSimulation, StepResult
 
 __all__ = ["ACTION_TYPES", "OpsEnv"]
@@ -20,8 +20,9 @@ class OpsEnv(gym.Env):
     Action: Box [-1, 1]^N. ``action_type="increment"`` (default): set-point changes in units of
     the actuator's max step per control step; ``"absolute"``: set-points in units of
     ``absolute_action_range_cycles`` optical periods. Observation: see
-    :mod:`ops_sim_ros.observation`. Reward: eq. (3), -(1 - P_N/P_max)^2. Episodes end by
-    truncation after ``max_episode_steps`` steps, never by termination.
+    :mod:`ops_sim_ros.observation` (``observation_options={"history": k}``: the last k
+    observations with the actions that led to them). Reward: eq. (3), -(1 - P_N/P_max)^2.
+    Episodes end by truncation after ``max_episode_steps`` steps, never by termination.
 
     Every episode starts with the set-points at 0 and hidden delay errors drawn as the mode says
     (``reset(options={"setpoints_fs": ..., "delay_errors_fs": ...})`` chooses either instead).
@@ -58,6 +59,7 @@ class OpsEnv(gym.Env):
         self.action_space = setup.action_space
         self.render_mode = render_mode
         self.sim = BatchedSimulation(self.config, num_envs=1, seed=None)
+        self._observations = ObservationBuilder(self.obs_spec)
         self._abs_scale = self.config.absolute_action_range_fs
         self._last: StepResult | None = None
         self._viewer = None
@@ -71,8 +73,12 @@ class OpsEnv(gym.Env):
     def optical_period_fs(self) -> float:
         return self.config.optical_period_fs
 
-    def _obs_info(self, r: StepResult) -> tuple[np.ndarray, dict[str, Any]]:
-        obs = build_observation(self.obs_spec, r.pulse_energies[0], r.power[0], r.setpoints_fs[0])
+    def _obs_info(self, r: StepResult, action=None) -> tuple[np.ndarray, dict[str, Any]]:
+        args = (r.pulse_energies[0], r.power[0], r.setpoints_fs[0])
+        if action is None:  # a new episode
+            obs = self._observations.reset(*args)
+        else:
+            obs = self._observations.step(*args, action)
         # The simulation makes fresh arrays every step, so views are safe to hand out.
         info = {
             "power": float(r.power[0]),
@@ -120,7 +126,7 @@ class OpsEnv(gym.Env):
             a = np.asarray(action, dtype=np.float64).reshape(1, self.stage)
             r = self.sim.step_setpoints(np.clip(a, -1.0, 1.0) * self._abs_scale)
         self._last = r
-        obs, info = self._obs_info(r)
+        obs, info = self._obs_info(r, action)
         if self.render_mode == "human":
             self.render()
         return obs, float(r.reward[0]), False, bool(r.truncated[0]), info

@@ -11,7 +11,19 @@ Default layout for N stages (S = 2^N - 1 output slots), float32:
                    wrapped, clipped to +- actuator range (so the policy knows where the actuator
                    limits are)
 
-Each block can be switched off in the spec.
+Each block can be switched off in the spec. That is one *frame*; with ``history = 0`` (the
+default, the paper's observation) the observation is the current frame.
+
+Memory (``ObservationSpec(history=k)``, k >= 1): the observation is the last k frames, each
+followed by the action that led to it (the normalized increment in [-1, 1]^N, zeros before the
+first step of an episode), newest first::
+
+    [frame_t, a_t, frame_{t-1}, a_{t-1}, ..., frame_{t-k+1}, a_{t-k+1}]     k * (F + N) values
+
+where a_t is the action whose step produced frame_t. After a reset every slot holds the first frame
+and a zero action. :class:`ObservationBuilder` keeps that state for one env or a batch; the
+in-process env, the vector envs, the ROS bridge and the policy runner all build their observations
+with it, and the spec (``history`` included) is saved in a trained model's metadata.
 """
 
 from __future__ import annotations
@@ -34,6 +46,14 @@ class ObservationSpec:
     include_energies: bool = True
     include_power: bool = True
     include_setpoints: bool = True
+    history: int = 0  # 0: the current frame only; k >= 1: the last k frames and their actions
+
+    def __post_init__(self) -> None:
+        if isinstance(self.history, bool) or not isinstance(self.history, int | np.integer):
+            raise ValueError(f"history must be an integer >= 0 (got {self.history!r})")
+        if self.history < 0:
+            raise ValueError(f"history must be >= 0 (got {self.history})")
+        object.__setattr__(self, "history", int(self.history))
 
     @classmethod
     def from_config(cls, config: OpsConfig, **options: Any) -> ObservationSpec:
@@ -49,12 +69,34 @@ class ObservationSpec:
         return 2**self.stage - 1
 
     @property
-    def dim(self) -> int:
+    def frame_dim(self) -> int:
+        """Values of one frame (the whole observation when history is 0)."""
         return (
             self.num_slots * self.include_energies
             + 1 * self.include_power
             + self.stage * self.include_setpoints
         )
+
+    @property
+    def dim(self) -> int:
+        if self.history == 0:
+            return self.frame_dim
+        return self.history * (self.frame_dim + self.stage)
+
+    def options(self) -> dict[str, Any]:
+        """The choices of the observation (blocks, history): the ``observation_options`` of an
+        env that builds this observation for its own configuration."""
+        return {
+            "include_energies": self.include_energies,
+            "include_power": self.include_power,
+            "include_setpoints": self.include_setpoints,
+            "history": self.history,
+        }
+
+    def describe(self) -> str:
+        """A short human description, e.g. for error messages."""
+        memory = f"history={self.history}" if self.history else "no memory"
+        return f"stage {self.stage}, {self.dim} values ({memory})"
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) of the observation, float32 arrays of length ``dim``."""
@@ -62,6 +104,17 @@ class ObservationSpec:
 
     @cached_property
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        low, high = self._frame_bounds
+        if self.history == 0:
+            return low, high
+        ones = np.ones(self.stage, dtype=np.float32)
+        return (
+            np.tile(np.concatenate([low, -ones]), self.history),
+            np.tile(np.concatenate([high, ones]), self.history),
+        )
+
+    @cached_property
+    def _frame_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         low, high = [], []
         if self.include_energies:
             low.append(np.zeros(self.num_slots))
@@ -89,11 +142,33 @@ class ObservationSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ObservationSpec:
+        """The spec of a metadata dict (specs saved before ``history`` existed have none)."""
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(
+                f"observation_spec has unknown keys {unknown} (written by a newer version?)"
+            )
         return cls(**data)
 
 
 def build_observation(spec: ObservationSpec, pulse_energies, power, setpoints_fs) -> np.ndarray:
-    """Observation(s) for a batch (B, dim) or a single env (dim,), float32, inside spec.bounds().
+    """The memoryless observation(s) (history 0): the current frame of :func:`build_frame`.
+
+    With ``spec.history > 0`` the observation depends on the past: use
+    :class:`ObservationBuilder`, which keeps it.
+    """
+    if spec.history:
+        raise ValueError(
+            f"the observation spec has history={spec.history}: build observations with "
+            "ObservationBuilder (it keeps the last frames and actions)"
+        )
+    return build_frame(spec, pulse_energies, power, setpoints_fs)
+
+
+def build_frame(spec: ObservationSpec, pulse_energies, power, setpoints_fs) -> np.ndarray:
+    """Frame(s) for a batch (B, frame_dim) or a single env (frame_dim,), float32, inside the
+    bounds of one frame.
 
     ``pulse_energies`` (B, S) or (S,), ``power`` (B,) or scalar, ``setpoints_fs`` (B, N) or (N,).
     """
@@ -102,7 +177,7 @@ def build_observation(spec: ObservationSpec, pulse_energies, power, setpoints_fs
     slots = 2**spec.stage - 1
     e2 = e.reshape(-1, slots)
     batch = e2.shape[0]
-    low, high = spec._bounds
+    low, high = spec._frame_bounds
     obs = np.empty((batch, low.shape[0]), dtype=np.float32)
     col = 0
     # Each block is written straight into the float32 array (float64 values rounded once).
@@ -117,6 +192,62 @@ def build_observation(spec: ObservationSpec, pulse_energies, power, setpoints_fs
         np.multiply(sp, 1.0 / spec.optical_period_fs, out=obs[:, col:])
     _clip(obs, low, high, out=obs)
     return obs[0] if single else obs
+
+
+class ObservationBuilder:
+    """The observations of one env (``num_envs=None``: 1-D arrays in and out) or of a batch of
+    ``num_envs``, as ``spec`` says: the frame of :func:`build_frame` and, with
+    ``spec.history = k > 0``, the last k frames with the actions that led to them.
+
+    ``reset(...)`` starts episodes (all, or the rows where ``mask`` is True: every history slot
+    gets the first frame and a zero action); ``step(..., actions)`` pushes the new frame with the
+    action (in [-1, 1]^N, clipped; float32) of the step that produced it. Both return the
+    observations of every env (float32, a fresh array). With history 0 both are
+    :func:`build_frame` and no state is kept.
+    """
+
+    def __init__(self, spec: ObservationSpec, num_envs: int | None = None) -> None:
+        self.spec = spec
+        self.single = num_envs is None
+        self.num_envs = 1 if num_envs is None else int(num_envs)
+        self._frame = spec.frame_dim
+        self._buf = None
+        if spec.history:
+            width = self._frame + spec.stage
+            self._buf = np.zeros((self.num_envs, spec.history, width), dtype=np.float32)
+        self._started = np.zeros(self.num_envs, dtype=bool)
+
+    @property
+    def has_memory(self) -> bool:
+        return self._buf is not None
+
+    def reset(self, pulse_energies, power, setpoints_fs, mask=None) -> np.ndarray:
+        frame = build_frame(self.spec, pulse_energies, power, setpoints_fs)
+        if self._buf is None:
+            return frame
+        rows = slice(None) if mask is None else np.asarray(mask, dtype=bool).reshape(-1)
+        f = frame.reshape(self.num_envs, self._frame)
+        self._buf[rows, :, : self._frame] = f[rows, None, :]
+        self._buf[rows, :, self._frame :] = 0.0
+        self._started[rows] = True
+        return self._output()
+
+    def step(self, pulse_energies, power, setpoints_fs, actions) -> np.ndarray:
+        frame = build_frame(self.spec, pulse_energies, power, setpoints_fs)
+        if self._buf is None:
+            return frame
+        if not self._started.all():
+            raise RuntimeError("ObservationBuilder.step() before reset() of every env")
+        a = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, self.spec.stage)
+        buf = self._buf
+        buf[:, 1:] = buf[:, :-1].copy()
+        buf[:, 0, : self._frame] = frame.reshape(self.num_envs, self._frame)
+        _clip(a, -1.0, 1.0, out=buf[:, 0, self._frame :])
+        return self._output()
+
+    def _output(self) -> np.ndarray:
+        obs = self._buf.reshape(self.num_envs, -1).copy()
+        return obs[0] if self.single else obs
 
 
 def pulse_energies_from_trace(trace, samples_per_slot: int) -> np.ndarray:

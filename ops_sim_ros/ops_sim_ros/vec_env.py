@@ -25,7 +25,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .env_setup import config_arguments, env_setup
-from .observation import build_observation
+from .observation import ObservationBuilder
 from .simulation import BatchedSimulation, StepResult
 
 
@@ -51,6 +51,7 @@ class _BatchCore:
         self.single_observation_space = setup.observation_space
         self.single_action_space = setup.action_space
         self.sim = BatchedSimulation(self.config, num_envs=num_envs, seed=seed)
+        self._observations = ObservationBuilder(self.obs_spec, num_envs)
         self._abs_scale = self.config.absolute_action_range_fs
 
     @classmethod
@@ -59,14 +60,19 @@ class _BatchCore:
         steps = kwargs.pop("max_episode_steps", None)
         return cls(num_envs=num_envs, **config_arguments(config, steps), **kwargs)
 
-    def _apply(self, actions) -> StepResult:
+    def _apply(self, actions) -> tuple[StepResult, np.ndarray]:
+        """Step every env; returns the result and its observations."""
         if self.action_type == "increment":
-            return self.sim.step_increments(actions)
-        a = np.asarray(actions, dtype=np.float64)
-        return self.sim.step_setpoints(np.clip(a, -1.0, 1.0) * self._abs_scale)
+            r = self.sim.step_increments(actions)
+        else:
+            a = np.asarray(actions, dtype=np.float64)
+            r = self.sim.step_setpoints(np.clip(a, -1.0, 1.0) * self._abs_scale)
+        obs = self._observations.step(r.pulse_energies, r.power, r.setpoints_fs, actions)
+        return r, obs
 
-    def _obs(self, r: StepResult) -> np.ndarray:
-        return build_observation(self.obs_spec, r.pulse_energies, r.power, r.setpoints_fs)
+    def _reset_obs(self, r: StepResult, mask=None) -> np.ndarray:
+        """Observations after new episodes started (all, or where ``mask`` is True)."""
+        return self._observations.reset(r.pulse_energies, r.power, r.setpoints_fs, mask)
 
     @staticmethod
     def _info_arrays(r: StepResult) -> dict[str, Any]:
@@ -132,11 +138,11 @@ class OpsVectorEnv(_BatchCore, VectorEnv):
         else:
             mask = None if options is None else options.get("reset_mask")
             r = self.sim.reset(mask=mask)
-        return self._obs(r), self._infos(r)
+            return self._reset_obs(r, mask), self._infos(r)
+        return self._reset_obs(r), self._infos(r)
 
     def step(self, actions):
-        r = self._apply(actions)
-        obs = self._obs(r)
+        r, obs = self._apply(actions)
         done = r.truncated
         terminated = np.zeros(self.num_envs, dtype=bool)
         truncated = done.copy()
@@ -155,7 +161,7 @@ class OpsVectorEnv(_BatchCore, VectorEnv):
                     done.reshape(-1, *([1] * (value.ndim - 1))), value, np.zeros_like(value)
                 )
         r2 = self.sim.reset(mask=done)
-        obs = self._obs(r2)
+        obs = self._reset_obs(r2, done)
         info = self._infos(r2)
         info.update(
             final_obs=final_obs,
@@ -201,14 +207,13 @@ def _make_sb3_class():
             r = self.sim.reset(seed=seed)
             self._reset_seeds()
             self._reset_options()
-            return self._obs(r)
+            return self._reset_obs(r)
 
         def step_async(self, actions: np.ndarray) -> None:
             self._actions = actions
 
         def step_wait(self):
-            r = self._apply(self._actions)
-            obs = self._obs(r)
+            r, obs = self._apply(self._actions)
             dones = r.truncated.copy()
             rewards = r.reward.astype(np.float32)
             power = r.power.tolist()
@@ -217,7 +222,7 @@ def _make_sb3_class():
                 for i in np.flatnonzero(dones):
                     infos[i]["terminal_observation"] = obs[i]
                     infos[i]["TimeLimit.truncated"] = True
-                obs = self._obs(self.sim.reset(mask=dones))
+                obs = self._reset_obs(self.sim.reset(mask=dones), dones)
             return obs, rewards, dones, infos
 
         def close(self) -> None:

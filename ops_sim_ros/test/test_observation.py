@@ -1,8 +1,15 @@
 """The shared observation builder (ops_sim_ros.observation)."""
 
 import numpy as np
+import pytest
 from ops_sim_ros.config import make_config
-from ops_sim_ros.observation import ObservationSpec, build_observation, pulse_energies_from_trace
+from ops_sim_ros.observation import (
+    ObservationBuilder,
+    ObservationSpec,
+    build_frame,
+    build_observation,
+    pulse_energies_from_trace,
+)
 from ops_sim_ros.physics import PulseStacker
 
 
@@ -32,3 +39,83 @@ def test_optional_blocks_and_trace_sampling():
     tr = ps.trace(d)
     e = pulse_energies_from_trace(tr, 6)
     np.testing.assert_allclose(build_observation(spec, e, 0.0, d), ps.slot_energies(d), atol=1e-6)
+
+
+# ------------------------------------------------------------------ memory (history = k)
+def test_history_spec_layout_bounds_and_round_trip():
+    cfg = make_config(stage=3)
+    spec = ObservationSpec.from_config(cfg, history=3)
+    frame = 7 + 1 + 3
+    assert spec.frame_dim == frame and spec.dim == 3 * (frame + 3)
+    low, high = spec.bounds()
+    base_low, _ = ObservationSpec.from_config(cfg).bounds()
+    np.testing.assert_array_equal(low[:frame], base_low)
+    np.testing.assert_array_equal(high[frame : frame + 3], np.ones(3, np.float32))
+    np.testing.assert_array_equal(low[frame : frame + 3], -np.ones(3, np.float32))
+    np.testing.assert_array_equal(high[-3:], np.ones(3, np.float32))
+    assert ObservationSpec.from_dict(spec.to_dict()) == spec
+    # a spec saved before memory existed has no "history": it is the memoryless one
+    old = {k: v for k, v in ObservationSpec.from_config(cfg).to_dict().items() if k != "history"}
+    assert ObservationSpec.from_dict(old).history == 0
+    assert spec.options()["history"] == 3
+    assert ObservationSpec.from_config(cfg, **spec.options()) == spec
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="history"):
+            ObservationSpec(stage=3, history=bad)
+    with pytest.raises(ValueError, match="unknown keys"):
+        ObservationSpec.from_dict({**spec.to_dict(), "memory": 2})
+    with pytest.raises(ValueError, match="ObservationBuilder"):
+        build_observation(spec, np.zeros(7), 0.0, np.zeros(3))
+
+
+def test_builder_reset_fills_and_step_shifts():
+    spec = ObservationSpec(stage=2, history=3)
+    f, n = spec.frame_dim, 2
+    b = ObservationBuilder(spec)
+    e0, e1, e2 = np.full(3, 0.1), np.full(3, 0.2), np.full(3, 0.3)
+    obs = b.reset(e0, 0.5, [0.0, 0.0])
+    assert obs.shape == (spec.dim,) and obs.dtype == np.float32 and obs in spec.space()
+    frame0 = build_frame(spec, e0, 0.5, [0.0, 0.0])
+    for i in range(3):  # every slot: the first frame and a zero action
+        np.testing.assert_array_equal(obs[i * (f + n) : i * (f + n) + f], frame0)
+        np.testing.assert_array_equal(obs[i * (f + n) + f : (i + 1) * (f + n)], 0.0)
+    obs1 = b.step(e1, 0.6, [1.0, -1.0], [0.25, 7.0])  # the action is clipped to [-1, 1]
+    np.testing.assert_array_equal(obs1[:f], build_frame(spec, e1, 0.6, [1.0, -1.0]))
+    np.testing.assert_array_equal(obs1[f : f + n], np.float32([0.25, 1.0]))
+    np.testing.assert_array_equal(obs1[f + n :], obs[: 2 * (f + n)])  # the older ones shifted
+    obs2 = b.step(e2, 0.7, [2.0, -2.0], [-0.5, 0.0])
+    np.testing.assert_array_equal(obs2[f + n :], obs1[: 2 * (f + n)])
+    obs1[:] = 9  # outputs are fresh arrays
+    assert b.step(e2, 0.7, [2.0, -2.0], [0.0, 0.0])[f + n] != 9
+
+
+def test_batched_builder_equals_single_and_resets_by_mask():
+    spec = ObservationSpec(stage=2, history=2)
+    rng = np.random.default_rng(0)
+    batch = ObservationBuilder(spec, num_envs=3)
+    singles = [ObservationBuilder(spec) for _ in range(3)]
+
+    def readings():
+        return rng.uniform(0, 1, (3, 3)), rng.uniform(0, 1, 3), rng.normal(0, 5, (3, 2))
+
+    e, p, sp = readings()
+    out = batch.reset(e, p, sp)
+    ref = [s.reset(e[i], p[i], sp[i]) for i, s in enumerate(singles)]
+    np.testing.assert_array_equal(out, np.stack(ref))
+    for t in range(4):
+        e, p, sp = readings()
+        a = rng.uniform(-1.5, 1.5, (3, 2))
+        out = batch.step(e, p, sp, a)
+        ref = [s.step(e[i], p[i], sp[i], a[i]) for i, s in enumerate(singles)]
+        np.testing.assert_array_equal(out, np.stack(ref))
+        if t == 1:  # env 1 starts a new episode: only its row is refilled
+            e, p, sp = readings()
+            mask = np.array([False, True, False])
+            out = batch.reset(e, p, sp, mask)
+            ref[1] = singles[1].reset(e[1], p[1], sp[1])
+            np.testing.assert_array_equal(out, np.stack(ref))
+    # history 0: the builder is build_frame, no state
+    plain = ObservationBuilder(ObservationSpec(stage=2), num_envs=3)
+    np.testing.assert_array_equal(
+        plain.step(e, p, sp, a), build_frame(ObservationSpec(stage=2), e, p, sp)
+    )

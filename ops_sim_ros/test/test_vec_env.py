@@ -93,3 +93,40 @@ def test_sb3_seed_reproducible():
         return v.step(np.full((2, 3), 0.2, dtype=np.float32))[0]
 
     np.testing.assert_array_equal(run(), run())
+
+
+def test_memory_observation_is_the_same_in_the_env_and_both_vector_envs():
+    """history=3: OpsEnv, OpsVectorEnv and OpsSb3VecEnv build the same numbers for the same
+    seed and actions, across an episode end (the vector envs' autoreset refills the history)."""
+    from ops_sim_ros.vec_env import OpsSb3VecEnv
+
+    kw = dict(stage=3, mode="hard", max_episode_steps=5, observation_options={"history": 3})
+    env = OpsEnv(**kw)
+    vec = OpsVectorEnv(num_envs=1, **kw)
+    sb3 = OpsSb3VecEnv(num_envs=1, seed=4, **kw)
+    spec = env.obs_spec
+    width = spec.frame_dim + spec.stage
+    o_env, _ = env.reset(seed=4)
+    o_vec, _ = vec.reset(seed=4)
+    o_sb3 = sb3.reset()
+    actions = np.random.default_rng(1).uniform(-1.2, 1.2, (12, 3)).astype(np.float32)
+    for t, a in enumerate(actions):
+        np.testing.assert_array_equal(o_vec[0], o_env)
+        np.testing.assert_array_equal(o_sb3[0], o_env)
+        assert o_env in env.observation_space
+        prev = o_env
+        o_env, _, _, truncated, _ = env.step(a)
+        o_vec, _, _, trunc_vec, info = vec.step(a[None])
+        o_sb3, _, dones, infos = sb3.step(a[None])
+        assert truncated == trunc_vec[0] == dones[0] == ((t + 1) % 5 == 0)
+        # newest frame first, followed by the (clipped) action that produced it
+        np.testing.assert_array_equal(o_env[spec.frame_dim : width], np.clip(a, -1, 1))
+        np.testing.assert_array_equal(o_env[width:], prev[:-width])
+        if truncated:
+            np.testing.assert_array_equal(info["final_obs"][0], o_env)
+            np.testing.assert_array_equal(infos[0]["terminal_observation"], o_env)
+            o_env, _ = env.reset()
+            for k in range(3):  # a new episode: the first frame everywhere, zero actions
+                block = o_env[k * width : (k + 1) * width]
+                np.testing.assert_array_equal(block[: spec.frame_dim], o_env[: spec.frame_dim])
+                np.testing.assert_array_equal(block[spec.frame_dim :], 0.0)
