@@ -73,11 +73,40 @@ class ProgressCallback(BaseCallback):
             self.bar.close()
 
 
-def training_callbacks(total: int, progress: bool, checkpoint_every: int, out, normalize: bool):
-    """The progress bar and the checkpoints (``out/checkpoints/model_<steps>_steps.zip``)."""
+class WallClockLimit(BaseCallback):
+    """Stops training (cleanly: the model is saved as after the last step) once ``seconds`` of
+    wall time have passed since training started; ``reached`` says whether it did."""
+
+    def __init__(self, seconds: float):
+        super().__init__()
+        self.seconds = float(seconds)
+        self.reached = False
+        self._t0 = 0.0
+
+    def _on_training_start(self) -> None:
+        self._t0 = time.monotonic()
+
+    def _on_step(self) -> bool:
+        if time.monotonic() - self._t0 >= self.seconds:
+            self.reached = True
+            return False
+        return True
+
+
+def training_callbacks(
+    total: int,
+    progress: bool,
+    checkpoint_every: int,
+    out,
+    normalize: bool,
+    max_seconds: float | None = None,
+):
+    """The progress bar, the checkpoints (``out/checkpoints/model_<steps>_steps.zip``) and, with
+    ``max_seconds``, a :class:`WallClockLimit` (last)."""
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
     (out / "checkpoints").mkdir(exist_ok=True)
+    limit = [WallClockLimit(max_seconds)] if max_seconds else []
     return CallbackList(
         [
             ProgressCallback(total, enabled=progress),
@@ -87,5 +116,6 @@ def training_callbacks(total: int, progress: bool, checkpoint_every: int, out, n
                 name_prefix="model",
                 save_vecnormalize=normalize,
             ),
+            *limit,
         ]
     )

@@ -90,6 +90,13 @@ def build_parser():
         default=100_000,
         help="environment steps to train (with --resume: additional steps)",
     )
+    p.add_argument(
+        "--max-minutes",
+        type=float,
+        default=None,
+        help="stop training after this many minutes of wall time (the model is saved as after "
+        "--timesteps; exit code 0)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument(
         "--backend",
@@ -252,6 +259,7 @@ class TrainRun:
     venv: Any = None
     model: Any = None
     start_steps: int = 0
+    wall_limit_reached: bool = False
 
 
 # ---------------------------------------------------------------------------------- steps
@@ -263,6 +271,8 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
     command_line = ["ros2", "run", "ops_gym_bridge", "train", *raw]
     if args.timesteps < 0:
         raise TrainError("--timesteps must be >= 0")
+    if args.max_minutes is not None and not args.max_minutes > 0:
+        raise TrainError("--max-minutes must be > 0")
     if not args.resume:
         if (out / "model.zip").exists():
             raise TrainError(
@@ -403,7 +413,8 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     total = run.start_steps + args.timesteps
     every = max(int(run.params.get("checkpoint_freq", 10000)) // max(args.n_envs, 1), 1)
     normalize = bool(run.params.get("normalize_obs", False))
-    callbacks = training_callbacks(total, not args.no_progress, every, out, normalize)
+    max_s = None if not args.max_minutes else 60.0 * args.max_minutes
+    callbacks = training_callbacks(total, not args.no_progress, every, out, normalize, max_s)
     # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
     meta = build_metadata(
         args, run.params, model, run.venv, run.command_line, 0.0, False, run.previous
@@ -436,6 +447,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         callbacks.callbacks[0].close()
+    run.wall_limit_reached = any(getattr(c, "reached", False) for c in callbacks.callbacks)
     wall = time.monotonic() - t0
     try:
         # A run that failed before its first step (e.g. no simulator) has nothing worth saving.
@@ -478,7 +490,8 @@ def summarize(run: TrainRun, interrupted: bool, error: BaseException | None, wal
             flush=True,
         )
         return EXIT_INTERRUPTED
-    print(f"[train] done: {summary}; model saved to {out / 'model.zip'}", flush=True)
+    why = f" (stopped at --max-minutes {run.args.max_minutes:g})" if run.wall_limit_reached else ""
+    print(f"[train] done: {summary}{why}; model saved to {out / 'model.zip'}", flush=True)
     return 0
 
 

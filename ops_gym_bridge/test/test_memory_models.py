@@ -151,3 +151,19 @@ def test_sets_defaults_and_errors():
     with pytest.raises(ValueError, match="set must be one of"):
         hp.load("sac", "slow")
     assert hp.ALGOS == ("ppo", "td3", "sac")  # the paper's (the Table 1 benchmark runs these)
+
+
+def test_max_minutes_stops_training_and_saves(tmp_path, capsys):
+    out = tmp_path / "limited"
+    code = train.run(
+        [
+            *("--hyperparams-set", "fast", "--stage", "2", "--mode", "easy", "--n-envs", "4"),
+            *("--timesteps", "100000000", "--max-minutes", "0.03", "--out", str(out)),
+            *("--no-progress", "--hyperparams", *TINY),
+        ]
+    )
+    assert code == 0
+    assert "(stopped at --max-minutes 0.03)" in capsys.readouterr().out
+    meta = json.loads((out / "metadata.json").read_text())
+    assert 0 < meta["timesteps"] < 100000000 and meta["history"][-1]["wall_s"] < 30
+    assert load_policy(out).stage == 2
