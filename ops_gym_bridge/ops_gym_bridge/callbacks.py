@@ -93,6 +93,35 @@ class WallClockLimit(BaseCallback):
         return True
 
 
+class BestModelCallback(BaseCallback):
+    """Every ``every`` calls (vector steps), ``evaluate(model) -> final P_N/P_max`` of the
+    deterministic policy; logs ``eval/final_power`` and calls ``save_best(model, power)`` when it
+    is the best so far. Its time is not training time: a :class:`WallClockLimit` is told."""
+
+    def __init__(self, every: int, evaluate, save_best, limit: WallClockLimit | None = None):
+        super().__init__()
+        self.every = max(int(every), 1)
+        self.evaluate = evaluate
+        self.save_best = save_best
+        self.limit = limit
+        self.best = float("-inf")
+        self.results: list[tuple[int, float]] = []
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.every:
+            return True
+        t0 = time.monotonic()
+        power = float(self.evaluate(self.model))
+        self.results.append((int(self.model.num_timesteps), power))
+        self.logger.record("eval/final_power", power)
+        if power > self.best:
+            self.best = power
+            self.save_best(self.model, power)
+        if self.limit is not None:
+            self.limit._t0 += time.monotonic() - t0
+        return True
+
+
 def training_callbacks(
     total: int,
     progress: bool,
@@ -100,13 +129,18 @@ def training_callbacks(
     out,
     normalize: bool,
     max_seconds: float | None = None,
+    best: tuple | None = None,
 ):
-    """The progress bar, the checkpoints (``out/checkpoints/model_<steps>_steps.zip``) and, with
+    """The progress bar, the checkpoints (``out/checkpoints/model_<steps>_steps.zip``), with
+    ``best = (every, evaluate, save_best)`` a :class:`BestModelCallback` and, with
     ``max_seconds``, a :class:`WallClockLimit` (last)."""
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
     (out / "checkpoints").mkdir(exist_ok=True)
-    limit = [WallClockLimit(max_seconds)] if max_seconds else []
+    wall = WallClockLimit(max_seconds) if max_seconds else None
+    limit = [wall] if wall else []
+    if best is not None:
+        limit.insert(0, BestModelCallback(*best, limit=wall))
     return CallbackList(
         [
             ProgressCallback(total, enabled=progress),

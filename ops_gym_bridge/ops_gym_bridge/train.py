@@ -17,6 +17,8 @@ Output directory (``--out DIR``)::
     DIR/checkpoints/       model_<steps>_steps.zip on a schedule (+ metadata.json)
     DIR/replay_buffer.pkl  (TD3 / SAC) the replay buffer, for --resume
     DIR/vecnormalize.pkl   (normalize_obs=true) the normalization statistics, for --resume
+    DIR/best/              (--eval-freq) the model that evaluated best during training
+                           (model.zip + metadata.json with eval_final_power; a model directory)
 
 Ctrl-C (or SIGTERM) stops training, saves a usable model and metadata, and exits with code 130.
 """
@@ -33,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ops_sim_ros.config import make_config
 
 from . import cli_args
 from . import hyperparams as hp
@@ -96,6 +99,18 @@ def build_parser():
         default=None,
         help="stop training after this many minutes of wall time (the model is saved as after "
         "--timesteps; exit code 0)",
+    )
+    p.add_argument(
+        "--eval-freq",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="every STEPS environment steps, evaluate the deterministic policy on the testing "
+        "environment (--eval-episodes parallel episodes) and keep the best in DIR/best "
+        "(0: never)",
+    )
+    p.add_argument(
+        "--eval-episodes", type=int, default=20, help="episodes of each --eval-freq evaluation"
     )
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument(
@@ -230,21 +245,84 @@ def build_metadata(
     }
 
 
-def _save(out: Path, args, params, model, venv, argv, wall_s, interrupted, previous) -> None:
+def _save(
+    out: Path,
+    args,
+    params,
+    model,
+    venv,
+    argv,
+    wall_s,
+    interrupted,
+    previous,
+    replay: bool = True,
+    extra: dict | None = None,
+) -> None:
     from ops_controller_ros.policy_io import save_metadata
 
+    out.mkdir(parents=True, exist_ok=True)
     tmp = out / "model.tmp.zip"
     model.save(str(tmp))
     tmp.replace(out / "model.zip")
-    if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
+    if replay and hasattr(model, "replay_buffer") and model.replay_buffer is not None:
         model.save_replay_buffer(str(out / "replay_buffer.pkl"))
     from stable_baselines3.common.vec_env import VecNormalize
 
     if isinstance(venv, VecNormalize):
         venv.save(str(out / "vecnormalize.pkl"))
-    save_metadata(
-        out, build_metadata(args, params, model, venv, argv, wall_s, interrupted, previous)
+    meta = build_metadata(args, params, model, venv, argv, wall_s, interrupted, previous)
+    save_metadata(out, {**meta, **(extra or {})})
+
+
+def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
+    """(every, evaluate, save_best) of --eval-freq: deterministic test-environment episodes on
+    the batched simulator, with the run's observation (memory) and normalization."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from .rollouts import rollout_policy
+
+    args = run.args
+    cfg = make_config(
+        args.stage, args.mode, "test", detector=args.detector, episode_steps=args.episode_steps
     )
+
+    def evaluate(model) -> float:
+        venv = run.venv
+        norm = venv.normalize_obs if isinstance(venv, VecNormalize) else (lambda o: o)
+        res = rollout_policy(
+            lambda obs: model.predict(norm(obs), deterministic=True)[0],
+            cfg,
+            args.eval_episodes,
+            args.episode_steps,
+            seed=0,
+            observation_options={"history": args.obs_history},
+        )
+        power = float(res["power"][:, -1].mean())
+        print(
+            f"[train] step {model.num_timesteps}: evaluation (test, {args.eval_episodes} "
+            f"episodes) final P_N/P_max {power:.4f}",
+            flush=True,
+        )
+        return power
+
+    def save_best(model, power: float) -> None:
+        wall = time.monotonic() - t0_ref[0]
+        extra = {"eval_final_power": power, "eval_episodes": args.eval_episodes}
+        _save(
+            run.out / "best",
+            args,
+            run.params,
+            model,
+            run.venv,
+            run.command_line,
+            wall,
+            False,
+            run.previous,
+            replay=False,
+            extra=extra,
+        )
+
+    return max(args.eval_freq // max(args.n_envs, 1), 1), evaluate, save_best
 
 
 @dataclass
@@ -273,6 +351,8 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         raise TrainError("--timesteps must be >= 0")
     if args.max_minutes is not None and not args.max_minutes > 0:
         raise TrainError("--max-minutes must be > 0")
+    if args.eval_freq < 0 or args.eval_episodes < 1:
+        raise TrainError("--eval-freq must be >= 0 and --eval-episodes >= 1")
     if not args.resume:
         if (out / "model.zip").exists():
             raise TrainError(
@@ -414,7 +494,9 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     every = max(int(run.params.get("checkpoint_freq", 10000)) // max(args.n_envs, 1), 1)
     normalize = bool(run.params.get("normalize_obs", False))
     max_s = None if not args.max_minutes else 60.0 * args.max_minutes
-    callbacks = training_callbacks(total, not args.no_progress, every, out, normalize, max_s)
+    t0_ref = [time.monotonic()]
+    best = _best_model_hooks(run, t0_ref) if args.eval_freq > 0 else None
+    callbacks = training_callbacks(total, not args.no_progress, every, out, normalize, max_s, best)
     # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
     meta = build_metadata(
         args, run.params, model, run.venv, run.command_line, 0.0, False, run.previous
@@ -423,7 +505,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
 
     previous_handler = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
     interrupted, error = False, None
-    t0 = time.monotonic()
+    t0 = t0_ref[0] = time.monotonic()
     print(
         f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
         f"detector={args.detector} backend={args.backend} n_envs={args.n_envs} "

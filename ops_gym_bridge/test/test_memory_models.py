@@ -38,6 +38,10 @@ def memory_model(tmp_path_factory):
             "2",
             "--timesteps",
             "200",
+            "--eval-freq",
+            "80",
+            "--eval-episodes",
+            "2",
             "--out",
             str(out),
             "--no-progress",
@@ -55,6 +59,15 @@ def test_metadata_records_the_memory_and_the_set(memory_model):
     assert meta["hyperparams_set"] == "fast" and meta["algo"] == "sac" and meta["n_envs"] == 4
     assert meta["observation_shape"] == [2 * (7 + 1 + 3 + 3)]
     assert meta["hyperparams"]["buffer_size"] == hp.load("sac", "fast")["buffer_size"]
+
+
+def test_eval_freq_keeps_the_best_model(memory_model):
+    best = memory_model / "best"
+    meta = json.loads((best / "metadata.json").read_text())
+    assert 0.0 <= meta["eval_final_power"] <= 1.0 and meta["eval_episodes"] == 2
+    assert not (best / "replay_buffer.pkl").exists()
+    loaded = load_policy(best)
+    assert loaded.observation_spec["history"] == 2 and loaded.model.num_timesteps <= 200
 
 
 def test_policy_runner_builds_the_envs_observations(memory_model):
