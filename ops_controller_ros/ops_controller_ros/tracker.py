@@ -29,6 +29,10 @@ fed forward) plus a small known excursion.
   errors and the drift are re-fitted locally to them (from the present drift, no drift, and each
   stage's drift reversed); if that fails for a whole window, a global acquisition follows.
 
+Detector noise: the first two readings of an acquisition are taken at the same set-points; their
+difference measures the noise variance, which widens the residual tolerance and the tracking
+excursion (``detector_noise`` gives a floor when the noise is known).
+
 Assumptions, stated: the landscape is periodic in each delay with the optical period (the envelope
 walk-off of a few cycles against a pulse of hundreds of fs is ignored), the random walk of the
 delays over one window is small against the excursions, and detector noise is Gaussian with std
@@ -116,6 +120,7 @@ class PhaseTracker:
         self.residual = float("nan")
         self.acquisitions = 0
         self._recovering = None  # readings since a fit failed, while re-locking locally
+        self._noise_var = None  # detector noise variance measured from a repeated reading
         self._tick = 0
         self.last_power = float("nan")
 
@@ -135,14 +140,18 @@ class PhaseTracker:
             if self.estimate is not None:  # recovering: excursions around the prediction
                 target = -(self.estimate + self.drift)
                 self._base = self._base + _wrap(target - self._base)
-            signs = self._rng.choice((-1.0, 1.0), size=self.stage)
-            u = self._base + p.acquire_dither_cycles * signs
+            if self.estimate is None and len(self._history) == 1 and self._noise_var is None:
+                u = self._history[0][0].copy()  # the first reading twice: the detector's noise
+            else:
+                signs = self._rng.choice((-1.0, 1.0), size=self.stage)
+                u = self._base + p.acquire_dither_cycles * signs
         else:
             target = -(self.estimate + self.drift)  # stacking point of the next step
             self._base = self._base + _wrap(target - self._base)
             u = self._base.copy()
             j = self._tick % self.stage
-            u[j] += p.hold_dither_cycles * (1.0 if (self._tick // self.stage) % 2 == 0 else -1.0)
+            sign = 1.0 if (self._tick // self.stage) % 2 == 0 else -1.0
+            u[j] += sign * self._hold_dither()
         u = np.clip(u, -self.range_cycles, self.range_cycles)
         self._last_command = u
         return u * self.period_fs
@@ -158,6 +167,11 @@ class PhaseTracker:
             )
         self.last_power = float(power)
         self._tick += 1
+        if self._noise_var is None and self._history:
+            last_u, last_y = self._history[-1]
+            if np.array_equal(last_u, self._last_command):  # the same set-points twice
+                diff = y[:-1] - last_y[:-1]
+                self._noise_var = float(np.mean(diff * diff)) / 2.0
         reading = (self._last_command.copy(), y)
         self._history.append(reading)
         if self._recovering is not None:
@@ -176,8 +190,19 @@ class PhaseTracker:
         age = np.arange(len(u) - 1, -1, -1, dtype=np.float64)  # steps before the latest
         return u, y, age
 
+    def _hold_dither(self) -> float:
+        """The tracking excursion: ``hold_dither_cycles``, larger on a noisy detector (a reading
+        near the optimum is quadratic in the error, so the excursion must lift its signal above
+        the noise: 0.3 sqrt(sigma) cycles, 0.03 at sigma = 0.01)."""
+        noise = max(self.params.detector_noise**2, self._noise_var or 0.0) ** 0.5
+        return max(self.params.hold_dither_cycles, 0.3 * noise**0.5)
+
     def _tolerance(self, y: np.ndarray) -> float:
-        return self.params.residual_tolerance + 2.0 * self.params.detector_noise**2
+        """Mean squared residual that still counts as a fit: the base tolerance plus three times
+        the detector's noise variance (the assumed one, or the one measured from a repeated
+        reading, whichever is larger)."""
+        noise_var = max(self.params.detector_noise**2, self._noise_var or 0.0)
+        return self.params.residual_tolerance + 3.0 * noise_var
 
     def _predict(self, x: np.ndarray, u: np.ndarray, age: np.ndarray, drift) -> np.ndarray:
         """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles."""
