@@ -53,7 +53,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class TrackerParams:
-    window: int = 6  # readings per fit (>= 2: the phase diversity)
+    window: int = 7  # readings per fit (>= 2: the phase diversity)
     acquire_dither_cycles: float = 0.02  # excursion per stage while acquiring (actuator size)
     hold_dither_cycles: float = 0.01  # excursion while tracking
     candidates: int = 2048  # random delay vectors scored by the global search
