@@ -24,7 +24,8 @@ fed forward) plus a small known excursion.
   excursion is ``hold_dither_cycles`` on one stage at a time, alternating in sign, so the window
   stays diverse and the sign of a small error stays visible; mu is a smoothed per-step difference
   of the estimates (``drift_gain``).
-* **Recover**: a fit that does not explain the readings (a knot of the drift, a jump) switches to
+* **Recover**: ``misses`` fits in a row that do not explain the readings (a knot of the drift, a
+  jump; a single one keeps the prediction) switch to
   acquisition-sized excursions around the prediction; after ``recover_readings`` readings the
   errors and the drift are re-fitted locally to them (from the present drift, no drift, and each
   stage's drift reversed); if that fails for a whole window, a global acquisition follows.
@@ -63,6 +64,7 @@ class TrackerParams:
     drift_gain: float = 0.05  # smoothing of the drift estimate (0: no drift feed-forward)
     residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
+    misses: int = 2  # bad fits in a row before recovering
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
     acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
 
@@ -78,6 +80,7 @@ class TrackerParams:
             ("drift_gain", 0 <= self.drift_gain <= 1, "in [0, 1]"),
             ("residual_tolerance", self.residual_tolerance > 0, "> 0"),
             ("detector_noise", self.detector_noise >= 0, ">= 0"),
+            ("misses", self.misses >= 1, ">= 1"),
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
         )
         for name, ok, allowed in checks:
@@ -120,6 +123,7 @@ class PhaseTracker:
         self.residual = float("nan")
         self.acquisitions = 0
         self._recovering = None  # readings since a fit failed, while re-locking locally
+        self._bad_fits = 0
         self._noise_var = None  # detector noise variance measured from a repeated reading
         self._tick = 0
         self.last_power = float("nan")
@@ -288,11 +292,14 @@ class PhaseTracker:
         x, cost = self._refine(start, u, y, age, self.drift, p.track_iterations)
         self.residual = float(cost[0])
         if self.residual > self._tolerance(y):
-            # The readings left the model (a knot of the drift, a jump): re-lock locally with
-            # larger known excursions around the prediction.
+            # The readings left the model (a knot of the drift, a jump): keep the prediction
+            # once; the second time in a row, re-lock locally with larger known excursions.
             self.estimate = _wrap(self.estimate + self.drift)
-            self._recovering = []
+            self._bad_fits += 1
+            if self._bad_fits >= p.misses:
+                self._recovering = []
             return
+        self._bad_fits = 0
         step = _wrap(x[0] - self.estimate)
         self.drift = (1.0 - p.drift_gain) * self.drift + p.drift_gain * step
         self.estimate = _wrap(x[0])
@@ -320,6 +327,7 @@ class PhaseTracker:
         i = int(np.argmin(cost))
         self.residual = float(cost[i])
         if self.residual <= self._tolerance(y):
+            self._bad_fits = 0
             self.estimate, self.drift = _wrap(z[i, :n]), z[i, n:]
             self._history = deque(readings, maxlen=p.window)
             self._recovering = None
