@@ -208,6 +208,14 @@ def _plt():
     return plt
 
 
+def _kilo(ax, axis: str = "x") -> None:
+    """Step axes in thousands (300k, not 300000: the labels would overlap)."""
+    from matplotlib.ticker import FuncFormatter
+
+    fmt = FuncFormatter(lambda v, _: f"{v / 1000:g}k" if v else "0")
+    (ax.xaxis if axis == "x" else ax.yaxis).set_major_formatter(fmt)
+
+
 def _empty(ax, text="no stored runs"):
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="gray")
 
@@ -269,6 +277,7 @@ def fig7(runs, path: Path, modes) -> None:
             _empty(ax)
         ax.set_title(f"N = {stage}, {mode}")
         ax.set_xlabel("training step")
+        _kilo(ax)
         ax.set_ylabel("training reward per step")
         ax.grid(alpha=0.3)
         if any_:
@@ -365,6 +374,8 @@ def fig9(runs, path: Path) -> None:
         ax.set_xlabel(xl)
         ax.set_ylabel("P_N / P_max")
         ax.set_ylim(0, 1.02)
+        if ax is a:
+            _kilo(ax)
         ax.grid(alpha=0.3)
         if by_stage:
             ax.legend(fontsize=8, loc="lower right")
@@ -427,6 +438,7 @@ def fig10(runs, path: Path) -> None:
     a.set_ylim(0, 1.05)
     b.set_title("(b) training steps to converge (90 % of the rise)", fontsize=10)
     b.set_ylabel("training steps")
+    _kilo(b, "y")
     for ax in (a, b):
         ax.set_xlabel("stages N")
         ax.grid(alpha=0.3)
