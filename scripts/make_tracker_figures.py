@@ -46,7 +46,8 @@ def run(mode, controller, seed, steps=200, stage=5):
 def acquisition(out: pathlib.Path, seed: int) -> None:
     power, traces, _, _, cfg = run("medium", "tracker", seed, steps=60)
     spgd, *_ = run("medium", "spgd", seed, steps=60)
-    shown = (0, 3, 6, 7, 30)
+    locked = int(np.flatnonzero(power >= 0.95)[0])
+    shown = (0, 3, locked - 1, locked, 30)
     fig = plt.figure(figsize=(14, 6.5))
     grid = fig.add_gridspec(2, len(shown))
     for i, t in enumerate(shown):
@@ -63,7 +64,7 @@ def acquisition(out: pathlib.Path, seed: int) -> None:
     ax.plot(power, "o-", markersize=3, label="tracker")
     ax.plot(spgd, "s-", markersize=2, alpha=0.7, label="SPGD-PID (same start)")
     ax.axhline(0.95, color="gray", linestyle=":", linewidth=0.8)
-    ax.axvspan(0, 6, color="tab:orange", alpha=0.1, label="acquiring: 6 known excursions")
+    ax.axvspan(0, locked - 1, color="tab:orange", alpha=0.1, label="acquiring: known excursions")
     ax.set_xlabel("control step")
     ax.set_ylabel("P_N / P_max")
     ax.set_ylim(0, 1.02)

@@ -1,0 +1,145 @@
+#!/usr/bin/env python3
+"""The tracker's goals (issue 10): N = 5, testing environment, 200-step episodes, seeds x episodes
+per row; final P_N / P_max per mode and detector, steps from a random medium start to 0.95, model
+mismatch the controller is not told of, and compute per control step for N = 1..7.
+
+Usage (after `source setup.bash`):
+  OPENBLAS_NUM_THREADS=1 python scripts/bench_tracker.py [--seeds 5] [--episodes 5]
+      [--write docs/results.md]
+Every row runs the same loop as `ros2 run ops_gym_bridge evaluate --controller tracker`
+(ops_gym_bridge.rollouts.controller_episodes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+import time
+
+import numpy as np
+from ops_gym_bridge.rollouts import rollout_controller
+from ops_sim_ros.config import MODES, make_config
+
+SECTION = "## Tracker: model-based control without training"
+GOALS = {"easy": 0.995, "medium": 0.99, "hard": 0.99, "extreme": 0.97}
+MISMATCH = {
+    "detector noise 0.01": dict(detector_noise=0.01),
+    "pulse width +20 %": dict(pulse_fwhm_fs=1200.0),
+    "wavelength +1 %": dict(wavelength_nm=1040.3),
+    "jitter 5x": dict(jitter_sigma_cycles=0.005),
+}
+
+
+def rows(mode, detector, seeds, episodes, steps, env=None):
+    nominal = make_config(stage=5, mode=mode, split="test", detector=detector)
+    sim_config = nominal.replace(**(env or {}))
+    power = []
+    for seed in range(seeds):
+        out = rollout_controller("tracker", {}, nominal, sim_config, episodes, steps, seed)
+        power.append(out["power"])
+    return np.concatenate(power)  # (seeds * episodes, steps + 1)
+
+
+def steps_to(power, level=0.95):
+    hit = power >= level
+    return np.where(hit.any(axis=1), hit.argmax(axis=1), power.shape[1])
+
+
+def compute_times(stages, steps=60):
+    from ops_controller_ros.controllers import make_controller
+    from ops_sim_ros.simulation import BatchedSimulation
+
+    out = {}
+    for n in stages:
+        cfg = make_config(stage=n, mode="medium", split="test")
+        sim = BatchedSimulation(cfg, 1, seed=0)
+        r = sim.reset(seed=0)
+        ctl = make_controller("tracker", cfg, {}, r.setpoints_fs[0], seed=0)
+        times = []
+        for _ in range(steps):
+            t0 = time.perf_counter()
+            u = ctl.command()
+            t1 = time.perf_counter()
+            r = sim.step_setpoints(u[None])
+            t2 = time.perf_counter()
+            ctl.observe(r.power[0], r.pulse_energies[0])
+            times.append((t1 - t0) + (time.perf_counter() - t2))
+        t = np.array(times) * 1e3
+        out[n] = (np.median(t), np.percentile(t, 95), t.max())
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--episodes", type=int, default=5)
+    ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument("--write", help="markdown file whose tracker section is replaced")
+    args = ap.parse_args()
+    cmd = "OPENBLAS_NUM_THREADS=1 python scripts/bench_tracker.py " + " ".join(sys.argv[1:])
+    n_ep = args.seeds * args.episodes
+    lines = [
+        SECTION,
+        "",
+        f"Command: `{cmd.strip()}` (N = 5, split=test, {args.steps}-step episodes, "
+        f"{args.seeds} seeds x {args.episodes} episodes per row; final = P_N / P_max after the "
+        "last step, mean ± std over episodes).",
+        "",
+        "| mode | detector | goal | final P_N / P_max | episodes >= 0.95 at the end | median "
+        "steps to 0.95 |",
+        "|---|---|---|---|---|---|",
+    ]
+    t_start = time.time()
+    for detector in ("polarizer", "total"):
+        for mode in MODES:
+            p = rows(mode, detector, args.seeds, args.episodes, args.steps)
+            final = p[:, -1]
+            ok = "met" if final.mean() >= GOALS[mode] else "missed"
+            lines.append(
+                f"| {mode} | {detector} | >= {GOALS[mode]} ({ok}) | {final.mean():.4f} ± "
+                f"{final.std():.4f} | {(final >= 0.95).sum()}/{n_ep} | "
+                f"{np.median(steps_to(p)):.0f} |"
+            )
+            print(lines[-1], f"[{time.time() - t_start:.0f} s]", flush=True)
+    lines += [
+        "",
+        "Model mismatch the controller is not told of (`evaluate --controller tracker --env "
+        "KEY=VALUE`; polarizer detector):",
+        "",
+        "| mismatch | medium (goal >= 0.95) | extreme (goal >= 0.90) |",
+        "|---|---|---|",
+    ]
+    for name, env in MISMATCH.items():
+        cells = []
+        for mode in ("medium", "extreme"):
+            final = rows(mode, "polarizer", args.seeds, args.episodes, args.steps, env)[:, -1]
+            cells.append(f"{final.mean():.4f} ± {final.std():.4f}")
+        lines.append(f"| {name} | {cells[0]} | {cells[1]} |")
+        print(lines[-1], f"[{time.time() - t_start:.0f} s]", flush=True)
+    lines += [
+        "",
+        "Compute per control step (`command` + `observe`, medium mode, 60 steps from a random "
+        "start; acquisition steps are the slow ones), ms:",
+        "",
+        "| N | median | 95th percentile | max |",
+        "|---|---|---|---|",
+    ]
+    for n, (med, p95, mx) in compute_times(range(1, 8)).items():
+        lines.append(f"| {n} | {med:.2f} | {p95:.1f} | {mx:.1f} |")
+        print(lines[-1], flush=True)
+    text = "\n".join(lines) + "\n"
+    if args.write:
+        path = pathlib.Path(args.write)
+        old = path.read_text() if path.exists() else ""
+        if SECTION in old:
+            head, rest = old.split(SECTION, 1)
+            tail = rest.split("\n## ", 1)
+            old = head + ("## " + tail[1] if len(tail) > 1 else "")
+        path.write_text(old.rstrip("\n") + "\n\n" + text)
+        print("wrote", path)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
