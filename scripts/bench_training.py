@@ -62,6 +62,67 @@ def evaluate_policy(model, stage, mode, detector, history, episodes, seed=0) -> 
     return float(res["power"][:, -1].mean())
 
 
+def build(name: str, args):
+    """(model, venv, params) of a candidate, as ``train`` builds them."""
+    import torch
+    from ops_controller_ros.policy_io import algo_class
+    from ops_gym_bridge.envs import make_vec_env
+
+    from ops_gym_bridge import hyperparams as hp
+
+    algo, hp_set, n_envs, history, overrides = CANDIDATES[name]
+    torch.set_num_threads(args.torch_threads)
+    params = hp.apply_overrides(hp.load(algo, hp_set), [*overrides, *args.hyperparams], algo)
+    venv = make_vec_env(
+        "inprocess",
+        args.stage,
+        args.mode,
+        "train",
+        n_envs=n_envs,
+        seed=args.seed,
+        overrides={"detector": args.detector},
+        observation_options={"history": history},
+    )
+    kwargs = hp.sb3_kwargs(algo, params, int(np.prod(venv.action_space.shape)))
+    model = algo_class(algo)(env=venv, seed=args.seed, device="cpu", verbose=0, **kwargs)
+    return model, venv, params
+
+
+def throughput(name: str, args) -> dict:
+    """Raw rates of a candidate: acting (policy forward + one batched env step, no learning) in
+    env-steps/s, learning (``model.train`` on a filled buffer) in gradient-steps/s, and what the
+    two give together at the candidate's update ratio (gradient steps per env step)."""
+    model, venv, params = build(name, args)
+    _, _, n_envs, _, _ = CANDIDATES[name]
+    batch = int(params.get("batch_size", 256))
+    model.learn(total_timesteps=max(2 * batch, int(params.get("learning_starts", 0))) + n_envs)
+    obs = venv.reset()
+    t0, steps = time.perf_counter(), 0
+    while time.perf_counter() - t0 < args.throughput_s:
+        actions, _ = model.predict(obs, deterministic=False)
+        obs, _, _, _ = venv.step(actions)
+        steps += n_envs
+    env_rate = steps / (time.perf_counter() - t0)
+    model._setup_learn(1, None)  # a logger for train()
+    t0, grads = time.perf_counter(), 0
+    while time.perf_counter() - t0 < args.throughput_s:
+        model.train(gradient_steps=10, batch_size=batch)
+        grads += 10
+    grad_rate = grads / (time.perf_counter() - t0)
+    utd = float(params.get("gradient_steps", 1)) / (n_envs * float(params.get("train_freq", 1)))
+    if isinstance(params.get("train_freq"), int) and params.get("gradient_steps", 1) == -1:
+        utd = 1.0
+    combined = 1.0 / (1.0 / env_rate + utd / grad_rate)
+    venv.close()
+    return {
+        "name": name,
+        "act_env_steps_per_s": round(env_rate, 1),
+        "gradient_steps_per_s": round(grad_rate, 1),
+        "update_ratio": utd,
+        "training_env_steps_per_s": round(combined, 1),
+    }
+
+
 def run_candidate(name: str, args) -> dict:
     import torch
     from ops_controller_ros.policy_io import algo_class
@@ -200,8 +261,34 @@ def main(argv=None) -> int:
     p.add_argument("--torch-threads", type=int, default=1)
     p.add_argument("--hyperparams", nargs="*", default=[], help="key=value for every candidate")
     p.add_argument("--json", help="write the results here")
+    p.add_argument(
+        "--throughput-only",
+        action="store_true",
+        help="only the raw rates (acting, gradient steps; --throughput-s each), no learning runs",
+    )
+    p.add_argument("--throughput-s", type=float, default=10.0)
     args = p.parse_args(argv)
     load = os.getloadavg()
+    if args.throughput_only:
+        rows = [throughput(name, args) for name in args.candidates]
+        print(
+            f"N = {args.stage}, {args.mode}, {args.detector}; torch {args.torch_threads} "
+            f"thread(s); load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f}\n\n"
+            "| candidate | acting: env-steps/s | gradient-steps/s | gradient steps per env step "
+            "| training env-steps/s at that ratio |\n|---|---|---|---|---|"
+        )
+        for r in rows:
+            print(
+                f"| {r['name']} | {r['act_env_steps_per_s']:,.0f} "
+                f"| {r['gradient_steps_per_s']:,.0f}"
+                f" | {r['update_ratio']:.3g} | {r['training_env_steps_per_s']:,.0f} |"
+            )
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(
+                json.dumps({"argv": sys.argv, "load": load, "throughput": rows}, indent=1)
+            )
+        return 0
     results = []
     for name in args.candidates:
         results.append(run_candidate(name, args))
