@@ -134,9 +134,12 @@ def test_play_reproduces_the_messages_in_order(recorded, procs):
         power = [
             _values(m)[0] for t, _, m in read_independently(recorded["bag"]) if t.endswith("power")
         ]
-        play = procs.ros2("bag", "play", str(recorded["bag"]), "--rate", "2", name="play")
-        assert play.wait_exit(60) == 0, play.output
-        observer.wait_count("power", len(power), timeout=10)
+        # -d: time for discovery beyond play's own 2 s wait for matching subscribers (a loaded
+        # machine can take longer to discover the observer, and then the first messages are lost)
+        args = ["bag", "play", str(recorded["bag"]), "--rate", "2", "-d", "3"]
+        play = procs.ros2(*args, name="play")
+        assert play.wait_exit(90) == 0, play.output
+        observer.wait_count("power", len(power), timeout=30)
         assert observer.values("power") == pytest.approx(power)
         assert observer.count("intensity") == len(
             [1 for t, _, _ in read_independently(recorded["bag"]) if t == "/ops/intensity"]
