@@ -98,7 +98,7 @@ def test_bad_commands_are_rejected_and_the_state_kept(procs, observer):
     observer.send([0.5, -0.25])
     # (the latched start-up set-points may or may not reach the observer first: wait for ours)
     observer.wait_until(
-        lambda: np.allclose(observer.last("delays") or [], [0.5, -0.25], atol=1e-6),
+        lambda: np.allclose(observer.last("delays") or [9.0, 9.0], [0.5, -0.25], atol=1e-6),
         timeout=30,
         what="the first command's step",
     )
