@@ -340,6 +340,95 @@ class RayPool:
         self.ray.shutdown()
 
 
+class _Scheduler:
+    """The run loop of :func:`execute`: starts runs while the pool has room, collects finished
+    ones, tries a failed run again after a delay (``--retries``), prints progress."""
+
+    def __init__(self, args, specs: list[dict], todo: list[dict], out: Path, pool, prog):
+        self.args, self.out, self.pool, self.prog = args, out, pool, prog
+        self.by_id = {s["id"]: s for s in specs}
+        self.queue = list(todo)
+        self.failed: list[str] = []
+        self.attempts: dict[str, int] = {}
+        self.retry_at: dict[str, float] = {}
+        self.last_line = time.monotonic()
+
+    def busy(self) -> bool:
+        return bool(self.queue or self.pool.running or self.retry_at)
+
+    def start_ready(self) -> None:
+        for rid, at in list(self.retry_at.items()):
+            if time.monotonic() >= at:
+                del self.retry_at[rid]
+                self.queue.append(self.by_id[rid])
+        while self.queue and self.pool.free():
+            spec = self.queue.pop(0)
+            path = self.out / "specs" / f"{spec['id']}.json"
+            write_json(path, spec)
+            resumed = (self.out / "work" / spec["id"] / "model.zip").exists()
+            print(
+                f"[benchmark] start {spec['id']}" + (" (resuming)" if resumed else ""), flush=True
+            )
+            self.pool.submit(spec, path)
+        if not self.pool.running:  # only retries left: wait for them
+            time.sleep(1.0)
+
+    def collect(self) -> None:
+        for rid, code in self.pool.poll(timeout=1.0):
+            self._finished(rid, code)
+            self._status()
+        if time.monotonic() - self.last_line > self.args.status_every:
+            self._status()
+
+    def _finished(self, rid: str, code: int) -> None:
+        args, log = self.args, self.out / "logs" / f"{rid}.log"
+        rec = read_json(self.out / "runs" / rid / "run.json")
+        if code == 0 and rec:
+            self.prog.done += 1
+            self.prog.learn(rec)
+            fp = rec["final_power"]
+            print(
+                f"[benchmark] done {rid}: final P_N/P_max train {fp['train']:.4f}, "
+                f"test {fp['test']:.4f} ({rec['wall_s']:.0f} s)",
+                flush=True,
+            )
+        elif self.attempts.get(rid, 0) < args.retries:
+            # e.g. a package being edited under a long benchmark: try again later (what the run
+            # had trained is in its work directory).
+            self.attempts[rid] = self.attempts.get(rid, 0) + 1
+            self.retry_at[rid] = time.monotonic() + args.retry_delay
+            print(
+                f"[benchmark] run {rid} failed (exit {code}); retry {self.attempts[rid]}/"
+                f"{args.retries} in {args.retry_delay:.0f} s; see {log}",
+                file=sys.stderr,
+                flush=True,
+            )
+        else:
+            self.failed.append(rid)
+            print(f"[benchmark] FAILED {rid} (exit {code}); see {log}", file=sys.stderr, flush=True)
+
+    def _status(self) -> None:
+        remaining = self.queue + [self.by_id[r] for r in _running_ids(self.pool)]
+        print(self.prog.line(remaining, self.out), flush=True)
+        self.last_line = time.monotonic()
+
+    def stop(self, reason) -> None:
+        running = list(_running_ids(self.pool))
+        print(
+            f"\n[benchmark] {reason}: stopping {len(running)} run(s) in progress "
+            f"({', '.join(running) or 'none'}); each saves its model",
+            file=sys.stderr,
+            flush=True,
+        )
+        self.pool.stop(self.args.grace)
+        print(
+            f"[benchmark] stopped with {self.prog.done}/{self.prog.total} runs stored; run the "
+            "same command again to resume",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
 def execute(args, specs: list[dict], out: Path) -> int:
     (out / "specs").mkdir(parents=True, exist_ok=True)
     (out / "logs").mkdir(exist_ok=True)
@@ -360,84 +449,16 @@ def execute(args, specs: list[dict], out: Path) -> int:
         + (f" on Ray ({args.ray_address})" if args.ray_address else ""),
         flush=True,
     )
-    by_id = {s["id"]: s for s in specs}
-    queue = list(todo)
-    failed: list[str] = []
-    attempts: dict[str, int] = {}
-    retry_at: dict[str, float] = {}
-    last_line = time.monotonic()
+    scheduler = _Scheduler(args, specs, todo, out, pool, prog)
     old = {s: signal.signal(s, _raise_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        while queue or pool.running or retry_at:
-            for rid, at in list(retry_at.items()):
-                if time.monotonic() >= at:
-                    del retry_at[rid]
-                    queue.append(by_id[rid])
-            while queue and pool.free():
-                spec = queue.pop(0)
-                path = out / "specs" / f"{spec['id']}.json"
-                write_json(path, spec)
-                resumed = (out / "work" / spec["id"] / "model.zip").exists()
-                print(
-                    f"[benchmark] start {spec['id']}" + (" (resuming)" if resumed else ""),
-                    flush=True,
-                )
-                pool.submit(spec, path)
-            if not pool.running:  # only retries left: wait for them
-                time.sleep(1.0)
-            for rid, code in pool.poll(timeout=1.0):
-                rec = read_json(out / "runs" / rid / "run.json")
-                if code == 0 and rec:
-                    prog.done += 1
-                    prog.learn(rec)
-                    fp = rec["final_power"]
-                    print(
-                        f"[benchmark] done {rid}: final P_N/P_max train {fp['train']:.4f}, "
-                        f"test {fp['test']:.4f} ({rec['wall_s']:.0f} s)",
-                        flush=True,
-                    )
-                elif attempts.get(rid, 0) < args.retries:
-                    # e.g. a package being edited under a long benchmark: try again later (what
-                    # the run had trained is in its work directory).
-                    attempts[rid] = attempts.get(rid, 0) + 1
-                    retry_at[rid] = time.monotonic() + args.retry_delay
-                    print(
-                        f"[benchmark] run {rid} failed (exit {code}); retry {attempts[rid]}/"
-                        f"{args.retries} in {args.retry_delay:.0f} s; see {out / 'logs' / rid}.log",
-                        file=sys.stderr,
-                        flush=True,
-                    )
-                else:
-                    failed.append(rid)
-                    print(
-                        f"[benchmark] FAILED {rid} (exit {code}); see {out / 'logs' / rid}.log",
-                        file=sys.stderr,
-                        flush=True,
-                    )
-                remaining = queue + [by_id[r] for r in _running_ids(pool)]
-                print(prog.line(remaining, out), flush=True)
-                last_line = time.monotonic()
-            if time.monotonic() - last_line > args.status_every:
-                remaining = queue + [by_id[r] for r in _running_ids(pool)]
-                print(prog.line(remaining, out), flush=True)
-                last_line = time.monotonic()
+        while scheduler.busy():
+            scheduler.start_ready()
+            scheduler.collect()
     except Stop as stop:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        running = list(_running_ids(pool))
-        print(
-            f"\n[benchmark] {stop}: stopping {len(running)} run(s) in progress "
-            f"({', '.join(running) or 'none'}); each saves its model",
-            file=sys.stderr,
-            flush=True,
-        )
-        pool.stop(args.grace)
-        print(
-            f"[benchmark] stopped with {prog.done}/{prog.total} runs stored; run the same "
-            "command again to resume",
-            file=sys.stderr,
-            flush=True,
-        )
+        scheduler.stop(stop)
         return EXIT_INTERRUPTED
     finally:
         for s, h in old.items():
@@ -445,7 +466,8 @@ def execute(args, specs: list[dict], out: Path) -> int:
     if args.ray_address:
         pool.ray.shutdown()
     print(f"[benchmark] finished: {prog.done}/{prog.total} runs stored in {out / 'runs'}")
-    if failed:
+    if scheduler.failed:
+        failed = scheduler.failed
         print(f"[benchmark] {len(failed)} run(s) failed: {', '.join(failed)}", file=sys.stderr)
         return 1
     return 0
