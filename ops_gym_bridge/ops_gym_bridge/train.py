@@ -65,6 +65,15 @@ def build_parser():
     p = cli_args.make_parser(
         "train", "Train a learned controller (stable-baselines3) for optical pulse stacking."
     )
+    _add_algorithm_arguments(p)
+    cli_args.add_env_arguments(p)
+    _add_budget_arguments(p)
+    _add_run_arguments(p)
+    return p
+
+
+def _add_algorithm_arguments(p) -> None:
+    """The algorithm, its named hyper-parameter set, the observation memory."""
     p.add_argument(
         "--algo",
         choices=hp.ALL_ALGOS,
@@ -86,7 +95,13 @@ def build_parser():
         help="observation memory: the last K observations and the actions that led to them "
         "(default: the set's; 0, the paper's memoryless observation, for paper)",
     )
-    cli_args.add_env_arguments(p)
+    cli_args.add_key_value_argument(
+        p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
+    )
+
+
+def _add_budget_arguments(p) -> None:
+    """How long to train and how to evaluate on the way."""
     p.add_argument(
         "--timesteps",
         type=int,
@@ -113,6 +128,10 @@ def build_parser():
         "--eval-episodes", type=int, default=20, help="episodes of each --eval-freq evaluation"
     )
     p.add_argument("--seed", type=int, default=0, help="random seed")
+
+
+def _add_run_arguments(p) -> None:
+    """Where the environments run, where the run is stored, and the process."""
     p.add_argument(
         "--backend",
         choices=BACKENDS,
@@ -126,9 +145,6 @@ def build_parser():
         help="parallel environments (default: the set's; 1 for paper)",
     )
     p.add_argument("--out", required=True, help="output directory")
-    cli_args.add_key_value_argument(
-        p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
-    )
     p.add_argument(
         "--resume",
         action="store_true",
@@ -155,7 +171,6 @@ def build_parser():
         default=1,
         help="torch CPU threads (small networks train fastest on 1; 0: torch default)",
     )
-    return p
 
 
 def _sigterm_to_interrupt(signum, frame):
