@@ -309,11 +309,12 @@ class PulseStacker:
         power = np.array([np.vdot(iw, iw) * self._power_scale])
         return energies, power
 
-    def _energies_and_power(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Detected slot energies (B, S) and power (B,) for a checked (B, N) float64 array.
+    def energies_and_power(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Detected slot energies (B, S) and power (B,) for a (B, N) float64 array of delay
+        errors in fs that the caller has checked (shape, finiteness).
 
-        What :meth:`evaluate` computes, without its checks and output record (the simulation's
-        per-step path).
+        What :meth:`evaluate` computes, without its checks and output record: the simulation's
+        per-step path, where a few microseconds a call matter.
         """
         if d.shape[0] == 1:
             return self._single(d)

@@ -163,7 +163,7 @@ class BatchedSimulation:
     def _measure(self, setpoints: np.ndarray, clipped: np.ndarray, advance=True) -> StepResult:
         applied = self.noise.sample(advance)
         applied += setpoints  # the noise array is fresh: reuse it for the applied delays
-        true_energies, power = self.stacker._energies_and_power(applied)
+        true_energies, power = self.stacker.energies_and_power(applied)
         energies = true_energies
         if self.config.detector_noise > 0.0:
             energies = energies + self.rng.normal(0.0, self.config.detector_noise, energies.shape)
