@@ -57,7 +57,7 @@ class TrackerParams:
     window: int = 7  # readings per fit (>= 2: the phase diversity)
     acquire_dither_cycles: float = 0.02  # excursion per stage while acquiring (actuator size)
     hold_dither_cycles: float = 0.01  # excursion while tracking
-    candidates: int = 2048  # random delay vectors scored by the global search
+    candidates: int = 512  # random delay vectors scored by the global search
     refine: int = 8  # best candidates refined by Levenberg-Marquardt
     iterations: int = 12  # LM iterations of a global refinement
     track_iterations: int = 3  # LM iterations per reading while tracking
