@@ -152,8 +152,8 @@ def test_periodic_in_each_delay_with_the_optical_period(n):
 def _two_beam_power_fine_grid(delta_fs, fwhm_fs=1000.0):
     """Independent check: fields on a fine time grid, integral of I^2 at the output polarizer.
 
-    One stage: pulses 1 (delayed by T + delta, then V) and 2 (H) meet; after the HWP the H port
-    carries (a(t) + a(t - delta) e^{i w0 delta}) / sqrt(2).
+    One stage: pulse 1 (coded +p, delayed by T + delta) and pulse 2 (coded -s) meet; after the
+    45-degree plate the s port carries -(a(t - delta) e^{i w0 delta} + a(t)) / sqrt(2).
     """
     t0 = fwhm_fs / (2 * np.arccosh(np.sqrt(2)))
     t = np.linspace(-40 * t0, 40 * t0, 400_001)
