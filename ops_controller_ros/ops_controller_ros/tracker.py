@@ -140,18 +140,18 @@ class PhaseTracker:
     def command(self) -> np.ndarray:
         """Set-points (fs) to apply now."""
         p = self.params
+        if self.estimate is not None:
+            # aim at the stacking point of the next step, by the smallest move modulo a period
+            target = -(self.estimate + self.drift)
+            self._base = self._base + _wrap(target - self._base)
         if self.estimate is None or self._recovering is not None:
-            if self.estimate is not None:  # recovering: excursions around the prediction
-                target = -(self.estimate + self.drift)
-                self._base = self._base + _wrap(target - self._base)
+            # acquiring, or recovering (excursions around the prediction)
             if self.estimate is None and len(self._history) == 1 and self._noise_var is None:
                 u = self._history[0][0].copy()  # the first reading twice: the detector's noise
             else:
                 signs = self._rng.choice((-1.0, 1.0), size=self.stage)
                 u = self._base + p.acquire_dither_cycles * signs
         else:
-            target = -(self.estimate + self.drift)  # stacking point of the next step
-            self._base = self._base + _wrap(target - self._base)
             u = self._base.copy()
             j = self._tick % self.stage
             sign = 1.0 if (self._tick // self.stage) % 2 == 0 else -1.0
@@ -188,9 +188,12 @@ class PhaseTracker:
             self._acquire()
 
     # ------------------------------------------------------------------ estimation
-    def _window(self):
-        u = np.stack([h[0] for h in self._history])  # (K, N) cycles
-        y = np.stack([h[1] for h in self._history])  # (K, S + 1)
+    def _window(self, readings=None):
+        """(set-points (K, N) cycles, readings (K, S + 1), age (K,) steps before the latest) of
+        ``readings`` (default: the window)."""
+        readings = self._history if readings is None else readings
+        u = np.stack([h[0] for h in readings])
+        y = np.stack([h[1] for h in readings])
         age = np.arange(len(u) - 1, -1, -1, dtype=np.float64)  # steps before the latest
         return u, y, age
 
@@ -201,7 +204,7 @@ class PhaseTracker:
         noise = max(self.params.detector_noise**2, self._noise_var or 0.0) ** 0.5
         return max(self.params.hold_dither_cycles, 0.3 * noise**0.5)
 
-    def _tolerance(self, y: np.ndarray) -> float:
+    def _tolerance(self) -> float:
         """Mean squared residual that still counts as a fit: the base tolerance plus three times
         the detector's noise variance (the assumed one, or the one measured from a repeated
         reading, whichever is larger)."""
@@ -267,14 +270,14 @@ class PhaseTracker:
         x, cost = self._refine(best, u, y, age, drift, p.iterations)
         i = int(np.argmin(cost))
         fitted_drift = np.zeros(self.stage)
-        if cost[i] > self._tolerance(y) and p.acquire_drift:
+        if cost[i] > self._tolerance() and p.acquire_drift:
             # Drift within the window (strong drift): fit it too, from the best starts.
             z = np.concatenate([x, np.zeros_like(x)], axis=1)
             z, cost = self._refine(z, u, y, age, None, p.iterations)
             i = int(np.argmin(cost))
             x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         self.residual = float(cost[i])
-        if self.residual <= self._tolerance(y):
+        if self.residual <= self._tolerance():
             self._start_tracking(x[i])
             self.drift = fitted_drift
             self.acquisitions += 1
@@ -291,7 +294,7 @@ class PhaseTracker:
         start = (self.estimate + self.drift)[None]
         x, cost = self._refine(start, u, y, age, self.drift, p.track_iterations)
         self.residual = float(cost[0])
-        if self.residual > self._tolerance(y):
+        if self.residual > self._tolerance():
             # The readings left the model (a knot of the drift, a jump): keep the prediction
             # once; the second time in a row, re-lock locally with larger known excursions.
             self.estimate = _wrap(self.estimate + self.drift)
@@ -314,9 +317,7 @@ class PhaseTracker:
         readings = self._recovering
         if len(readings) < p.recover_readings:
             return
-        u = np.stack([r[0] for r in readings])
-        y = np.stack([r[1] for r in readings])
-        age = np.arange(len(u) - 1, -1, -1, dtype=np.float64)
+        u, y, age = self._window(readings)
         drifts = [self.drift, np.zeros(n)]
         for j in range(n):
             d = self.drift.copy()
@@ -326,7 +327,7 @@ class PhaseTracker:
         z, cost = self._refine(z, u, y, age, None, p.iterations)
         i = int(np.argmin(cost))
         self.residual = float(cost[i])
-        if self.residual <= self._tolerance(y):
+        if self.residual <= self._tolerance():
             self._bad_fits = 0
             self.estimate, self.drift = _wrap(z[i, :n]), z[i, n:]
             self._history = deque(readings, maxlen=p.window)
