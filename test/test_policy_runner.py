@@ -52,6 +52,19 @@ def policy(procs, model, name="policy"):
     )
 
 
+def wait_for_moved_setpoints(observer):
+    """Until the runner's commands have moved the simulator's set-points."""
+    first = observer.last("delays")
+    observer.wait_until(
+        lambda: (
+            observer.last("delays") is not None
+            and not np.allclose(observer.last("delays"), first or [0, 0])
+        ),
+        timeout=20,
+        what="set-points moved by the policy",
+    )
+
+
 def test_policy_runner_closes_the_loop(procs, observer, trained_model):
     procs.ros2(
         "run",
@@ -73,15 +86,7 @@ def test_policy_runner_closes_the_loop(procs, observer, trained_model):
     runner.wait_for("running the policy", timeout=30)
     runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
     # The runner moves the set-points: commands arrive and the sim applies them.
-    first = observer.last("delays")
-    observer.wait_until(
-        lambda: (
-            observer.last("delays") is not None
-            and not np.allclose(observer.last("delays"), first or [0, 0])
-        ),
-        timeout=20,
-        what="set-points moved by the policy",
-    )
+    wait_for_moved_setpoints(observer)
     assert_no_traceback(runner.output)
 
 
@@ -130,13 +135,5 @@ def test_memory_model_closes_the_loop(procs, observer, tmp_path):
     runner.wait_for(r"loaded TQC model for stage 2 \(easy mode, observation stage 2, 16 values")
     runner.wait_for("history=2")
     runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
-    first = observer.last("delays")
-    observer.wait_until(
-        lambda: (
-            observer.last("delays") is not None
-            and not np.allclose(observer.last("delays"), first or [0, 0])
-        ),
-        timeout=20,
-        what="set-points moved by the policy",
-    )
+    wait_for_moved_setpoints(observer)
     assert_no_traceback(runner.output)
