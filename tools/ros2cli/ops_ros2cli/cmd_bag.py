@@ -53,6 +53,12 @@ def add_verbs(verbs):
         "--include-hidden-topics", action="store_true", help="Record hidden topics as well."
     )
     p.add_argument(
+        "--include-unpublished-topics",
+        action="store_true",
+        help="Subscribe to topics that have no publisher yet (their QoS cannot be adapted to "
+        "the publishers' offers). By default such a topic is subscribed when a publisher appears.",
+    )
+    p.add_argument(
         "-o",
         "--output",
         help="Destination of the bagfile to create, defaults to a timestamped folder "
@@ -206,9 +212,11 @@ def main_record(args):
                     warned.add(name)
                     _log("WARN", LOGGER_RECORDER, f"Topic '{name}' has several types: skipped")
                     continue
+                infos = cli.node.get_publishers_info_by_topic(name)
+                if not infos and not args.include_unpublished_topics:
+                    continue  # like rosbag2: wait for a publisher, whose QoS the request adapts to
                 try:
                     msg_class = get_message(types[0])
-                    infos = cli.node.get_publishers_info_by_topic(name)
                     writer.add_topic(name, types[0], [qos_io.to_dict(i.qos_profile) for i in infos])
                 except (AttributeError, ImportError, ValueError) as exc:
                     warned.add(name)
