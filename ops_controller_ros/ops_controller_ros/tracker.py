@@ -20,15 +20,17 @@ fed forward) plus a small known excursion.
   is accepted only when its residual is within ``residual_tolerance`` (plus the expected detector
   noise); otherwise the controller keeps its set-points, keeps dithering and searches again (it
   never moves on an estimate it does not trust).
-* **Track**: each reading re-fits the window from the prediction (a few LM iterations); the
-  excursion is ``hold_dither_cycles`` on one stage at a time, alternating in sign, so the window
-  stays diverse and the sign of a small error stays visible; mu is a smoothed per-step difference
-  of the estimates (``drift_gain``).
-* **Recover**: ``misses`` fits in a row that do not explain the readings (a knot of the drift, a
-  jump; a single one keeps the prediction) switch to
-  acquisition-sized excursions around the prediction; after ``recover_readings`` readings the
-  errors and the drift are re-fitted locally to them (from the present drift, no drift, and each
-  stage's drift reversed); if that fails for a whole window, a global acquisition follows.
+* **Track**: each reading re-fits the window as a path, a moving-horizon estimate: the errors at
+  every reading of the window and one drift per stage, most probable given the readings, a random
+  walk between readings (``walk_cycles`` per step; by default six times the model's jitter, so a
+  rig noisier than nominal is still followed) and the drift's present estimate
+  (``drift_prior_cycles``). The excursion is ``hold_dither_cycles`` on one stage at a time,
+  alternating in sign, so the window stays diverse and the sign of a small error stays visible.
+* **Recover**: ``misses`` fits in a row whose readings' residual exceeds ``lost_tolerance`` (a
+  knot of the drift, a jump; a single one keeps the prediction) switch to acquisition-sized
+  excursions around the prediction; after ``recover_readings`` readings the path is re-fitted to
+  them from the present drift, no drift, and each stage's drift reversed; if that fails for a
+  whole window, a global acquisition follows.
 
 Detector noise: the first two readings of an acquisition are taken at the same set-points; their
 difference measures the noise variance, which widens the residual tolerance and the tracking
@@ -61,8 +63,10 @@ class TrackerParams:
     refine: int = 8  # best candidates refined by Levenberg-Marquardt
     iterations: int = 12  # LM iterations of a global refinement
     track_iterations: int = 3  # LM iterations per reading while tracking
-    drift_gain: float = 0.05  # smoothing of the drift estimate (0: no drift feed-forward)
-    residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit
+    walk_cycles: float | None = None  # random walk per step allowed (None: 6x the model's jitter)
+    drift_prior_cycles: float = 0.002  # how far one window may move the drift estimate (std)
+    residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit (to lock)
+    lost_tolerance: float = 1e-5  # mean squared residual of a tracking fit that counts as lost
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
     misses: int = 2  # bad fits in a row before recovering
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
@@ -77,7 +81,8 @@ class TrackerParams:
             ("refine", 1 <= self.refine <= self.candidates, "in [1, candidates]"),
             ("iterations", self.iterations >= 1, ">= 1"),
             ("track_iterations", self.track_iterations >= 1, ">= 1"),
-            ("drift_gain", 0 <= self.drift_gain <= 1, "in [0, 1]"),
+            ("walk_cycles", self.walk_cycles is None or self.walk_cycles > 0, "> 0 or None"),
+            ("drift_prior_cycles", self.drift_prior_cycles > 0, "> 0"),
             ("residual_tolerance", self.residual_tolerance > 0, "> 0"),
             ("detector_noise", self.detector_noise >= 0, ">= 0"),
             ("misses", self.misses >= 1, ">= 1"),
@@ -182,8 +187,7 @@ class PhaseTracker:
             self._recovering.append(reading)
             self._recover()
         elif self.estimate is not None:
-            if len(self._history) >= 3:
-                self._track()
+            self._track()
         elif len(self._history) == self.params.window:
             self._acquire()
 
@@ -204,12 +208,12 @@ class PhaseTracker:
         noise = max(self.params.detector_noise**2, self._noise_var or 0.0) ** 0.5
         return max(self.params.hold_dither_cycles, 0.3 * noise**0.5)
 
-    def _tolerance(self) -> float:
+    def _tolerance(self, base: float | None = None) -> float:
         """Mean squared residual that still counts as a fit: the base tolerance plus three times
         the detector's noise variance (the assumed one, or the one measured from a repeated
         reading, whichever is larger)."""
         noise_var = max(self.params.detector_noise**2, self._noise_var or 0.0)
-        return self.params.residual_tolerance + 3.0 * noise_var
+        return (self.params.residual_tolerance if base is None else base) + 3.0 * noise_var
 
     def _predict(self, x: np.ndarray, u: np.ndarray, age: np.ndarray, drift) -> np.ndarray:
         """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles."""
@@ -287,14 +291,91 @@ class PhaseTracker:
         self.estimate = _wrap(x)
         self.drift = np.zeros(self.stage)
 
-    def _track(self) -> None:
-        """Re-fit x to the whole window from the prediction (drift fed forward)."""
+    def _walk_sigma(self) -> float:
+        w = self.params.walk_cycles
+        return max(6.0 * self.model.jitter_sigma_cycles, 1e-4) if w is None else w
+
+    def _fit_path(self, x_now, drift, u, y, iterations: int):
+        """Moving-horizon fit of the window: the errors at every reading X (K, N) and the drift
+        mu (N,), most probable given the readings (std sqrt(tolerance + noise)), a random walk
+        between readings (X_k - X_k-1 - mu, std ``walk``) and the drift's prior (the present
+        estimate, std ``drift_prior_cycles``). Starts from x_now (the errors at the latest
+        reading) and the drift; returns (x at the latest reading, mu, mean squared residual of
+        the readings)."""
         p = self.params
-        u, y, age = self._window()
-        start = (self.estimate + self.drift)[None]
-        x, cost = self._refine(start, u, y, age, self.drift, p.track_iterations)
-        self.residual = float(cost[0])
-        if self.residual > self._tolerance():
+        k, n = u.shape
+        r_sd = (p.residual_tolerance + max(p.detector_noise**2, self._noise_var or 0.0)) ** 0.5
+        w_sd, m_sd = self._walk_sigma(), p.drift_prior_cycles
+        age = np.arange(k - 1, -1, -1, dtype=np.float64)
+        path = x_now[None, :] - age[:, None] * drift[None, :]
+        z = np.concatenate([path.ravel(), drift])
+        mu0 = drift.copy()
+        d = z.size
+        # constant rows: the walk between readings and the drift prior (linear)
+        walk = np.zeros(((k - 1) * n, d))
+        for i in range(1, k):
+            rows = slice((i - 1) * n, i * n)
+            walk[rows, i * n : (i + 1) * n] = np.eye(n)
+            walk[rows, (i - 1) * n : i * n] = -np.eye(n)
+            walk[rows, k * n :] = -np.eye(n)
+        walk /= w_sd
+        prior = np.zeros((n, d))
+        prior[:, k * n :] = np.eye(n) / m_sd
+        h = 1e-4
+        offsets = np.concatenate([np.zeros((1, n)), h * np.eye(n)])  # (N + 1, N)
+
+        def residuals(z, with_jacobian):
+            xs = z[: k * n].reshape(k, n)
+            pts = u + xs
+            if with_jacobian:
+                pts = (pts[:, None, :] + offsets[None]).reshape(-1, n)
+            out = self.stacker.evaluate(pts * self.period_fs)
+            pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
+            jac = None
+            if with_jacobian:
+                pred = pred.reshape(k, n + 1, -1)
+                jac_k = (pred[:, 1:] - pred[:, :1]).transpose(0, 2, 1) / h  # (K, R, N)
+                pred = pred[:, 0]
+                m = jac_k.shape[1]
+                data_jac = np.zeros((k * m, d))
+                for i in range(k):
+                    data_jac[i * m : (i + 1) * m, i * n : (i + 1) * n] = -jac_k[i] / r_sd
+                jac = np.concatenate([data_jac, walk, prior])
+            data = ((y - pred) / r_sd).ravel()
+            res = np.concatenate([data, walk @ z, (z[k * n :] - mu0) / m_sd])
+            return res, jac, float(np.mean((y - pred) ** 2))
+
+        res, jac, data_cost = residuals(z, True)
+        cost = float(res @ res)
+        lam = 1e-3
+        for _ in range(iterations):
+            jtj = jac.T @ jac
+            step = -np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-12), jac.T @ res)
+            step = np.clip(step, -0.1, 0.1)
+            trial = z + step
+            t_res, _, t_data = residuals(trial, False)
+            t_cost = float(t_res @ t_res)
+            if t_cost < cost:
+                z, cost, data_cost, lam = trial, t_cost, t_data, lam * 0.3
+                res, jac, _ = residuals(z, True)
+            else:
+                lam *= 10.0
+        return z[(k - 1) * n : k * n], z[k * n :], data_cost
+
+    def _track(self) -> None:
+        """Re-fit the window's path of errors and the drift from the prediction."""
+        p = self.params
+        u, y, _ = self._window()
+        x, drift, cost = self._fit_path(
+            self.estimate + self.drift, self.drift, u, y, p.track_iterations
+        )
+        lost = self._tolerance(p.lost_tolerance)
+        if cost > lost:  # a knot of the drift, a fast walk: iterate further before giving up
+            x, drift, cost = self._fit_path(
+                self.estimate + self.drift, self.drift, u, y, p.iterations
+            )
+        self.residual = cost
+        if self.residual > lost:
             # The readings left the model (a knot of the drift, a jump): keep the prediction
             # once; the second time in a row, re-lock locally with larger known excursions.
             self.estimate = _wrap(self.estimate + self.drift)
@@ -303,9 +384,8 @@ class PhaseTracker:
                 self._recovering = []
             return
         self._bad_fits = 0
-        step = _wrap(x[0] - self.estimate)
-        self.drift = (1.0 - p.drift_gain) * self.drift + p.drift_gain * step
-        self.estimate = _wrap(x[0])
+        self.drift = drift
+        self.estimate = _wrap(x)
 
     def _recover(self) -> None:
         """A local re-fit of the errors and the drift to the readings since the fit failed,
@@ -317,19 +397,18 @@ class PhaseTracker:
         readings = self._recovering
         if len(readings) < p.recover_readings:
             return
-        u, y, age = self._window(readings)
+        u, y, _ = self._window(readings)
         drifts = [self.drift, np.zeros(n)]
         for j in range(n):
             d = self.drift.copy()
             d[j] = -d[j]
             drifts.append(d)
-        z = np.stack([np.concatenate([self.estimate, d]) for d in drifts])
-        z, cost = self._refine(z, u, y, age, None, p.iterations)
-        i = int(np.argmin(cost))
-        self.residual = float(cost[i])
+        fits = [self._fit_path(self.estimate, d, u, y, p.iterations) for d in drifts]
+        x, drift, cost = min(fits, key=lambda f: f[2])
+        self.residual = cost
         if self.residual <= self._tolerance():
             self._bad_fits = 0
-            self.estimate, self.drift = _wrap(z[i, :n]), z[i, n:]
+            self.estimate, self.drift = _wrap(x), drift
             self._history = deque(readings, maxlen=p.window)
             self._recovering = None
         elif len(readings) >= p.window:
