@@ -48,6 +48,7 @@ within the actuator range.
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from dataclasses import asdict, dataclass
 
@@ -71,6 +72,7 @@ class TrackerParams:
     misses: int = 2  # bad fits in a row before recovering
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
     acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
+    step_budget_ms: float = 0.0  # global search per reading (0: all in the reading that starts it)
 
     def __post_init__(self):
         checks = (
@@ -87,6 +89,7 @@ class TrackerParams:
             ("detector_noise", self.detector_noise >= 0, ">= 0"),
             ("misses", self.misses >= 1, ">= 1"),
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
+            ("step_budget_ms", self.step_budget_ms >= 0, ">= 0"),
         )
         for name, ok, allowed in checks:
             if not ok:
@@ -94,6 +97,9 @@ class TrackerParams:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+SEARCH_CHUNK = 128  # candidates scored per unit of the global search
 
 
 def _wrap(cycles):
@@ -131,6 +137,7 @@ class PhaseTracker:
         self._bad_fits = 0
         self._noise_var = None  # detector noise variance measured from a repeated reading
         self._tick = 0
+        self._search = None  # the global search under way (a generator), if any
         self.last_power = float("nan")
 
     @property
@@ -188,8 +195,8 @@ class PhaseTracker:
             self._recover()
         elif self.estimate is not None:
             self._track()
-        elif len(self._history) == self.params.window:
-            self._acquire()
+        elif len(self._history) == self.params.window or self._search is not None:
+            self._search_step()
 
     # ------------------------------------------------------------------ estimation
     def _window(self, readings=None):
@@ -229,7 +236,8 @@ class PhaseTracker:
         return np.mean(r * r, axis=(1, 2))
 
     def _refine(self, x, u, y, age, drift, iterations: int):
-        """Batched Levenberg-Marquardt from starts x (M, N); returns (x, cost).
+        """Batched Levenberg-Marquardt from starts x (M, N), a generator that yields after each
+        iteration and returns (x, cost) (``x, cost = yield from self._refine(...)``).
 
         ``drift`` (N,) is held fixed; with ``drift=None`` each start's drift is fitted too
         (x is then (M, 2N): the errors now and their drift per step)."""
@@ -262,27 +270,50 @@ class PhaseTracker:
             x = np.where(better[:, None], trial, x)
             cost = np.where(better, new_cost, cost)
             lam = np.where(better, lam * 0.3, lam * 4.0)
+            yield
         return x, cost
 
-    def _acquire(self) -> None:
+    def _search_step(self) -> None:
+        """Advance the global search by this reading's share: all of it with ``step_budget_ms``
+        0, else work units until the budget is spent (the commands keep dithering meanwhile)."""
+        if self._search is None:
+            self._search = self._acquire()
+        budget = self.params.step_budget_ms
+        deadline = time.perf_counter() + budget / 1e3 if budget > 0 else float("inf")
+        try:
+            while True:
+                next(self._search)
+                if time.perf_counter() >= deadline:
+                    return
+        except StopIteration:
+            self._search = None
+
+    def _acquire(self):
+        """The global search on the window as it is now, a generator (one unit per yield); an
+        estimate found readings later is carried forward by its drift."""
         p = self.params
         u, y, age = self._window()
+        started = self._tick
         drift = np.zeros(self.stage)
         cand = self._rng.uniform(-0.5, 0.5, size=(p.candidates, self.stage))
-        cost = self._cost(cand, u, y, age, drift)
+        scores = []
+        for i in range(0, p.candidates, SEARCH_CHUNK):
+            scores.append(self._cost(cand[i : i + SEARCH_CHUNK], u, y, age, drift))
+            yield
+        cost = np.concatenate(scores)
         best = cand[np.argsort(cost)[: p.refine]]
-        x, cost = self._refine(best, u, y, age, drift, p.iterations)
+        x, cost = yield from self._refine(best, u, y, age, drift, p.iterations)
         i = int(np.argmin(cost))
         fitted_drift = np.zeros(self.stage)
         if cost[i] > self._tolerance() and p.acquire_drift:
             # Drift within the window (strong drift): fit it too, from the best starts.
             z = np.concatenate([x, np.zeros_like(x)], axis=1)
-            z, cost = self._refine(z, u, y, age, None, p.iterations)
+            z, cost = yield from self._refine(z, u, y, age, None, p.iterations)
             i = int(np.argmin(cost))
             x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         self.residual = float(cost[i])
         if self.residual <= self._tolerance():
-            self._start_tracking(x[i])
+            self._start_tracking(x[i] + (self._tick - started) * fitted_drift)
             self.drift = fitted_drift
             self.acquisitions += 1
 
@@ -415,4 +446,4 @@ class PhaseTracker:
             self._recovering = None
             self.estimate = None
             self._history = deque(readings[-p.window :], maxlen=p.window)
-            self._acquire()
+            self._search_step()

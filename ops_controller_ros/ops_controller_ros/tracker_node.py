@@ -26,8 +26,17 @@ PARAMS = [
         "hold_dither_cycles", _D.hold_dither_cycles, "excursion while tracking", low=0.0, high=0.25
     ),
     ParamSpec("detector_noise", _D.detector_noise, "assumed detector noise std", low=0.0, high=1.0),
+    # A rig runs in real time: the global search is spread over readings (the in-process
+    # evaluation's default, 0, does it in one reading and locks a few steps sooner).
+    ParamSpec(
+        "step_budget_ms",
+        4.0,
+        "compute of the global search per reading, ms (0: all in one reading)",
+        low=0.0,
+        high=1000.0,
+    ),
 ]
-_TRACKER_FIELDS = ("window", "hold_dither_cycles", "detector_noise")
+_TRACKER_FIELDS = ("window", "hold_dither_cycles", "detector_noise", "step_budget_ms")
 _MODEL_FIELDS = ("wavelength_nm", "pulse_fwhm_fs", "detector")
 
 
