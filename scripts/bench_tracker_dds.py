@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""The tracker's closed loop over DDS (issue 10's last goal): `ros2 run ops_sim_ros sim` (stage 5,
+medium, free-running at its default rate) and `ros2 run ops_controller_ros tracker` as real
+processes; per simulator seed, the seconds from starting the tracker's process until the mean
+P_N / P_max of the last 10 readings of `ops/power` is >= 0.95 (process start-up included).
+
+Usage (after `source setup.bash`):
+  python scripts/bench_tracker_dds.py [--seeds 5] [--write docs/tracker.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_closed_loop import REPO, start, stop
+
+SECTION = "## Closed loop over DDS: `sim` + `tracker`"
+
+
+def lock_time(seed: int, logdir: Path, timeout: float = 60.0) -> float:
+    """Seconds from the tracker's start to 0.95 over the last 10 readings (inf: not within
+    ``timeout``)."""
+    import rclpy
+    from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_POWER
+    from std_msgs.msg import Float32
+
+    sim = start(
+        ["ros2", "run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=5", "-p",
+         "mode:=medium", "-p", f"seed:={seed}"],
+        logdir / f"sim_{seed}.log",
+    )  # fmt: skip
+    node = rclpy.create_node(f"bench_tracker_dds_{seed}")
+    power: list[float] = []
+    node.create_subscription(Float32, TOPIC_POWER, lambda m: power.append(m.data), QOS_RELIABLE)
+    tracker = None
+    try:
+        deadline = time.monotonic() + 30
+        while len(power) < 20 and time.monotonic() < deadline:  # the simulator is up
+            rclpy.spin_once(node, timeout_sec=0.05)
+        if len(power) < 20:
+            raise RuntimeError(f"no ops/power from the simulator (see {logdir})")
+        t0 = time.monotonic()
+        tracker = start(
+            ["ros2", "run", "ops_controller_ros", "tracker", "--ros-args", "-p", f"seed:={seed}"],
+            logdir / f"tracker_{seed}.log",
+        )
+        power.clear()
+        while time.monotonic() - t0 < timeout:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            if len(power) >= 10 and np.mean(power[-10:]) >= 0.95:
+                return time.monotonic() - t0
+        return float("inf")
+    finally:
+        if tracker is not None:
+            stop(tracker)
+        stop(sim)
+        node.destroy_node()
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--write", help="markdown file whose section is replaced")
+    args = ap.parse_args()
+    os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 30))
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    import rclpy
+
+    logdir = REPO / "runs" / "bench_tracker_dds"
+    logdir.mkdir(parents=True, exist_ok=True)
+    rclpy.init()
+    try:
+        times = []
+        for seed in range(args.seeds):
+            times.append(lock_time(seed, logdir))
+            print(f"[bench] seed {seed}: P_N/P_max >= 0.95 after {times[-1]:.1f} s", flush=True)
+    finally:
+        rclpy.shutdown()
+    t = np.array(times)
+    cmd = "python scripts/bench_tracker_dds.py " + " ".join(sys.argv[1:])
+    text = (
+        f"{SECTION}\n\nCommand: `{cmd.strip()}` (simulator stage 5, medium, free-running at "
+        "100 Hz; seconds from starting the tracker's process, its start-up included, until "
+        "the mean "
+        "P_N / P_max of the last 10 readings is >= 0.95; goal: within 10 s).\n\n"
+        "| simulator seed | " + " | ".join(str(s) for s in range(args.seeds)) + " |\n"
+        "|---|" + "---|" * args.seeds + "\n"
+        "| seconds | " + " | ".join(f"{x:.1f}" for x in t) + " |\n\n"
+        f"Median {np.median(t):.1f} s, worst {t.max():.1f} s (load average "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end).\n"
+    )
+    print(text)
+    if args.write:
+        path = Path(args.write)
+        old = path.read_text()
+        if SECTION in old:
+            head, rest = old.split(SECTION, 1)
+            tail = rest.split("\n## ", 1)
+            old = head + ("## " + tail[1] if len(tail) > 1 else "")
+        path.write_text(old.rstrip("\n") + "\n\n" + text)
+        print("wrote", path)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
