@@ -141,15 +141,20 @@ def main() -> int:
             print(lines[-1], flush=True)
     text = "\n".join(lines) + "\n"
     if args.write:
-        path = pathlib.Path(args.write)
-        old = path.read_text() if path.exists() else ""
-        if SECTION in old:
-            head, rest = old.split(SECTION, 1)
-            tail = rest.split("\n## ", 1)
-            old = head + ("## " + tail[1] if len(tail) > 1 else "")
-        path.write_text(old.rstrip("\n") + "\n\n" + text)
-        print("wrote", path)
+        replace_section(pathlib.Path(args.write), SECTION, text)
     return 0
+
+
+def replace_section(path: pathlib.Path, section: str, text: str) -> None:
+    """Move the markdown section that starts with the line ``section`` (to the next "## ") to
+    the end of ``path``, as ``text``."""
+    old = path.read_text() if path.exists() else ""
+    if section in old:
+        head, rest = old.split(section, 1)
+        tail = rest.split("\n## ", 1)
+        old = head + ("## " + tail[1] if len(tail) > 1 else "")
+    path.write_text(old.rstrip("\n") + "\n\n" + text)
+    print("wrote", path)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_closed_loop import REPO, start, stop
+from bench_tracker import replace_section
 
 SECTION = "## Closed loop over DDS: `sim` + `tracker`"
 
@@ -98,14 +99,7 @@ def main() -> int:
     )
     print(text)
     if args.write:
-        path = Path(args.write)
-        old = path.read_text()
-        if SECTION in old:
-            head, rest = old.split(SECTION, 1)
-            tail = rest.split("\n## ", 1)
-            old = head + ("## " + tail[1] if len(tail) > 1 else "")
-        path.write_text(old.rstrip("\n") + "\n\n" + text)
-        print("wrote", path)
+        replace_section(Path(args.write), SECTION, text)
     return 0
 
 
