@@ -59,7 +59,7 @@ import numpy as np
 class TrackerParams:
     window: int = 7  # readings per fit (>= 2: the phase diversity)
     acquire_dither_cycles: float = 0.02  # excursion per stage while acquiring (actuator size)
-    hold_dither_cycles: float = 0.01  # excursion while tracking
+    hold_dither_cycles: float = 0.012  # excursion while tracking
     candidates: int = 512  # random delay vectors scored by the global search
     refine: int = 8  # best candidates refined by Levenberg-Marquardt
     iterations: int = 12  # LM iterations of a global refinement
@@ -69,7 +69,7 @@ class TrackerParams:
     residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit (to lock)
     lost_tolerance: float = 1e-5  # mean squared residual of a tracking fit that counts as lost
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
-    misses: int = 2  # bad fits in a row before recovering
+    misses: int = 3  # bad fits in a row before recovering
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
     acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
     step_budget_ms: float = 0.0  # global search per reading (0: all in the reading that starts it)
