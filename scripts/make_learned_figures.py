@@ -5,7 +5,7 @@ from their learning.csv (written by scripts/ship_model.py), with the paper's TD3
 at N = 5 for reference.
 
 Usage (after `source setup.bash`): python scripts/make_learned_figures.py
-Writes docs/figures/learned_agents.png.
+Writes docs/figures/learned_agents.png and the table of models/README.md (between its markers).
 """
 
 from __future__ import annotations
@@ -21,6 +21,41 @@ import matplotlib.pyplot as plt
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER_TD3_TEST_N5 = {"easy": 0.954, "medium": 0.911, "hard": 0.813}  # the paper's Table 1
+GOALS_N5 = {"easy": 0.99, "medium": 0.97, "hard": 0.95}  # issue 11
+BEGIN, END = "<!-- table: make_learned_figures.py -->", "<!-- end of table -->"
+
+
+def table_rows() -> list[str]:
+    """One markdown row per shipped model, from its metadata, learning curve and evaluation."""
+    rows = [
+        "| model | N, mode | memory k | training run (one core) | env steps of the kept model "
+        "| held-out test final P_N / P_max | issue 11 goal | paper's TD3 (N = 5, its detector) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for folder in sorted((REPO / "models").glob("*/eval/evaluation.json")):
+        model = folder.parents[1]
+        meta = json.loads((model / "metadata.json").read_text())
+        test = json.loads(folder.read_text())["splits"]["test"]
+        with open(model / "learning.csv", newline="") as f:
+            curve = list(csv.DictReader(f))
+        minutes = float(curve[-1]["minutes"]) if curve else float("nan")
+        n, mode = meta["stage"], meta["mode"]
+        goal = f">= {GOALS_N5[mode]}" if n == 5 and mode in GOALS_N5 else "-"
+        paper = f"{PAPER_TD3_TEST_N5[mode]}" if n == 5 and mode in PAPER_TD3_TEST_N5 else "-"
+        rows.append(
+            f"| `models/{model.name}` | {n}, {mode} | {meta.get('obs_history', 0)} | "
+            f"{minutes:.0f} min | {meta['timesteps']:,} | {test['final_power_mean']:.3f} ± "
+            f"{test['final_power_std']:.3f} | {goal} | {paper} |"
+        )
+    return rows
+
+
+def write_table(path: Path) -> None:
+    text = path.read_text()
+    head, rest = text.split(BEGIN, 1)
+    tail = rest.split(END, 1)[1]
+    path.write_text(head + BEGIN + "\n" + "\n".join(table_rows()) + "\n" + END + tail)
+    print("wrote", path)
 
 
 def main() -> int:
@@ -49,6 +84,7 @@ def main() -> int:
     out = REPO / "docs" / "figures" / "learned_agents.png"
     fig.savefig(out, dpi=110)
     print("wrote", out)
+    write_table(REPO / "models" / "README.md")
     return 0
 
 
