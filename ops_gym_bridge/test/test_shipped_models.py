@@ -26,10 +26,9 @@ def test_shipped_model_reproduces_its_recorded_evaluation(folder):
     meta = json.loads((folder / "metadata.json").read_text())
     assert (recorded["stage"], recorded["mode"]) == (meta["stage"], meta["mode"])
     seed = recorded["seeds"][0]
-    args = build_parser().parse_args(
-        [str(folder), "--seeds", str(seed), "--episodes", str(recorded["episodes_per_seed"])]
-        + ["--splits", "test", "--quiet"]
-    )
+    episodes = str(recorded["episodes_per_seed"])
+    argv = [str(folder), "--seeds", str(seed), "--episodes", episodes, "--splits", "test"]
+    args = build_parser().parse_args([*argv, "--quiet"])
     again = evaluate(args)["splits"]["test"]["final_power_per_seed"][0]
     before = recorded["splits"]["test"]["final_power_per_seed"][0]
     # deterministic policy, seeded episodes: the same up to float differences between CPUs
