@@ -18,58 +18,74 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from ops_gym_bridge.report import PAPER_TABLE1
 
 REPO = Path(__file__).resolve().parents[1]
-PAPER_TD3_TEST_N5 = {"easy": 0.954, "medium": 0.911, "hard": 0.813}  # the paper's Table 1
+MODES = ("easy", "medium", "hard")
+PAPER_TD3_TEST_N5 = {m: PAPER_TABLE1[(m, "test")]["td3"][0] for m in MODES}  # N = 5
 GOALS_N5 = {"easy": 0.99, "medium": 0.97, "hard": 0.95}  # issue 11
 BEGIN, END = "<!-- table: make_learned_figures.py -->", "<!-- end of table -->"
 
 
-def table_rows() -> list[str]:
-    """One markdown row per shipped model, from its metadata, learning curve and evaluation."""
+def load_models() -> list[dict]:
+    """Per shipped folder: its name, metadata, learning curve and held-out test summary."""
+    models = []
+    for meta_path in sorted((REPO / "models").glob("*/metadata.json")):
+        folder = meta_path.parent
+        with open(folder / "learning.csv", newline="") as f:
+            curve = list(csv.DictReader(f))
+        evaluation = json.loads((folder / "eval" / "evaluation.json").read_text())
+        models.append(
+            {
+                "name": folder.name,
+                "meta": json.loads(meta_path.read_text()),
+                "curve": curve,
+                "test": evaluation["splits"]["test"],
+            }
+        )
+    return models
+
+
+def table_rows(models: list[dict]) -> list[str]:
+    """One markdown row per shipped model."""
     rows = [
         "| model | N, mode | memory k | training run (one core) | env steps of the kept model "
         "| held-out test final P_N / P_max | issue 11 goal | paper's TD3 (N = 5, its detector) |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for folder in sorted((REPO / "models").glob("*/eval/evaluation.json")):
-        model = folder.parents[1]
-        meta = json.loads((model / "metadata.json").read_text())
-        test = json.loads(folder.read_text())["splits"]["test"]
-        with open(model / "learning.csv", newline="") as f:
-            curve = list(csv.DictReader(f))
+    for m in models:
+        meta, test, curve = m["meta"], m["test"], m["curve"]
         minutes = float(curve[-1]["minutes"]) if curve else float("nan")
         n, mode = meta["stage"], meta["mode"]
-        goal = f">= {GOALS_N5[mode]}" if n == 5 and mode in GOALS_N5 else "-"
-        paper = f"{PAPER_TD3_TEST_N5[mode]}" if n == 5 and mode in PAPER_TD3_TEST_N5 else "-"
+        n5 = n == 5 and mode in GOALS_N5
+        goal = f">= {GOALS_N5[mode]}" if n5 else "-"
+        paper = f"{PAPER_TD3_TEST_N5[mode]:.3f}" if n5 else "-"
         rows.append(
-            f"| `models/{model.name}` | {n}, {mode} | {meta.get('obs_history', 0)} | "
+            f"| `models/{m['name']}` | {n}, {mode} | {meta.get('obs_history', 0)} | "
             f"{minutes:.0f} min | {meta['timesteps']:,} | {test['final_power_mean']:.3f} ± "
             f"{test['final_power_std']:.3f} | {goal} | {paper} |"
         )
     return rows
 
 
-def write_table(path: Path) -> None:
+def write_table(path: Path, models: list[dict]) -> None:
     text = path.read_text()
     head, rest = text.split(BEGIN, 1)
     tail = rest.split(END, 1)[1]
-    path.write_text(head + BEGIN + "\n" + "\n".join(table_rows()) + "\n" + END + tail)
+    path.write_text(head + BEGIN + "\n" + "\n".join(table_rows(models)) + "\n" + END + tail)
     print("wrote", path)
 
 
 def main() -> int:
     fig, ax = plt.subplots(figsize=(9, 4.8))
     colors = {"easy": "tab:green", "medium": "tab:orange", "hard": "tab:red"}
-    for folder in sorted((REPO / "models").glob("*/learning.csv")):
-        meta = json.loads((folder.parent / "metadata.json").read_text())
-        cfg = meta["config"]
-        with open(folder, newline="") as f:
-            rows = list(csv.DictReader(f))
-        minutes = [float(r["minutes"]) for r in rows]
-        power = [float(r["test_final_power"]) for r in rows]
-        history = meta.get("obs_history", 0)
-        label = f"{folder.parent.name}: N = {cfg['stage']} {cfg['mode']}, memory k = {history}"
+    models = load_models()
+    for m in models:
+        cfg = m["meta"]["config"]
+        minutes = [float(r["minutes"]) for r in m["curve"]]
+        power = [float(r["test_final_power"]) for r in m["curve"]]
+        history = m["meta"].get("obs_history", 0)
+        label = f"{m['name']}: N = {cfg['stage']} {cfg['mode']}, memory k = {history}"
         style = "-" if cfg["stage"] == 5 else ":"
         ax.plot(minutes, power, style, color=colors.get(cfg["mode"]), label=label)
     for mode, value in PAPER_TD3_TEST_N5.items():
@@ -84,7 +100,7 @@ def main() -> int:
     out = REPO / "docs" / "figures" / "learned_agents.png"
     fig.savefig(out, dpi=110)
     print("wrote", out)
-    write_table(REPO / "models" / "README.md")
+    write_table(REPO / "models" / "README.md", models)
     return 0
 
 
