@@ -18,12 +18,15 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+import numpy as np
 from ops_gym_bridge.report import PAPER_TABLE1
 
 REPO = Path(__file__).resolve().parents[1]
 MODES = ("easy", "medium", "hard")
 PAPER_TD3_TEST_N5 = {m: PAPER_TABLE1[(m, "test")]["td3"][0] for m in MODES}  # N = 5
 GOALS_N5 = {"easy": 0.99, "medium": 0.97, "hard": 0.95}  # issue 11
+ABLATIONS = REPO / "docs" / "results" / "issue11"  # runs kept as curves only
+TABLE1_RUNS = REPO / "docs" / "results" / "n5_quick" / "runs"
 BEGIN, END = "<!-- table: make_learned_figures.py -->", "<!-- end of table -->"
 
 
@@ -76,26 +79,74 @@ def write_table(path: Path, models: list[dict]) -> None:
     print("wrote", path)
 
 
+def load_ablations() -> list[dict]:
+    """Runs kept for the figure only (scripts/ship_model.py --curve-only): metadata + curve."""
+    runs = []
+    for meta_path in sorted(ABLATIONS.glob("*/metadata.json")):
+        with open(meta_path.parent / "learning.csv", newline="") as f:
+            curve = list(csv.DictReader(f))
+        meta = json.loads(meta_path.read_text())
+        runs.append({"name": meta_path.parent.name, "meta": meta, "curve": curve})
+    return runs
+
+
+def paper_faithful_curves(mode: str) -> list[tuple[list[float], list[float]]]:
+    """The Table 1 SAC runs of ``mode`` (the paper's set, k = 0; docs/results/n5_quick): the
+    training episodes' final P_N/P_max (moving mean of 20) against minutes of training, the
+    minutes spread evenly over the run's measured training wall time."""
+    curves = []
+    for run in sorted(TABLE1_RUNS.glob(f"n5_{mode}_sac_s*")):
+        info = json.loads((run / "run.json").read_text())
+        with open(run / "training.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        steps = np.array([float(r["timesteps"]) for r in rows])
+        power = np.array([float(r["final_power"]) for r in rows])
+        if steps.size < 20:
+            continue
+        smooth = np.convolve(power, np.ones(20) / 20, mode="valid")
+        minutes = steps[19:] / info["timesteps"] * info["train_wall_s"] / 60.0
+        curves.append((minutes.tolist(), smooth.tolist()))
+    return curves
+
+
+def run_label(meta: dict, prefix: str) -> str:
+    k = meta.get("obs_history", 0)
+    reward = meta.get("reward") or "paper"
+    detector = meta.get("detector", "polarizer")
+    n = meta["stage"]
+    return f"{prefix}: N = {n}, {meta['algo']}, k = {k}, reward {reward}, {detector}"
+
+
+def plot_curve(ax, run: dict, label: str, **style) -> None:
+    minutes = [float(r["minutes"]) for r in run["curve"]]
+    power = [float(r["test_final_power"]) for r in run["curve"]]
+    ax.plot(minutes, power, label=label, **style)
+
+
 def main() -> int:
-    fig, ax = plt.subplots(figsize=(9, 4.8))
-    colors = {"easy": "tab:green", "medium": "tab:orange", "hard": "tab:red"}
-    models = load_models()
-    for m in models:
-        cfg = m["meta"]["config"]
-        minutes = [float(r["minutes"]) for r in m["curve"]]
-        power = [float(r["test_final_power"]) for r in m["curve"]]
-        history = m["meta"].get("obs_history", 0)
-        label = f"{m['name']}: N = {cfg['stage']} {cfg['mode']}, memory k = {history}"
-        style = "-" if cfg["stage"] == 5 else ":"
-        ax.plot(minutes, power, style, color=colors.get(cfg["mode"]), label=label)
-    for mode, value in PAPER_TD3_TEST_N5.items():
-        ax.axhline(value, color=colors[mode], lw=0.8, ls="--", alpha=0.6)
-        ax.text(0.5, value + 0.005, f"paper TD3, N = 5 {mode} (300k steps)", fontsize=7)
-    ax.set_xlabel("training time (minutes, one core)")
-    ax.set_ylabel("test final P_N / P_max (20 episodes)")
-    ax.set_ylim(0, 1.02)
-    ax.set_title("Learned agents (SAC, `--hyperparams-set fast`, polarizer detector)")
-    ax.legend(fontsize=8, loc="lower right")
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5), sharey=True)
+    models, ablations = load_models(), load_ablations()
+    for ax, mode in zip(axes, MODES, strict=True):
+        for m in (m for m in models if m["meta"]["mode"] == mode):
+            five = m["meta"]["stage"] == 5
+            style = {"lw": 2.2 if five else 1.4, "ls": "-" if five else ":", "color": "black"}
+            plot_curve(ax, m, run_label(m["meta"], f"models/{m['name']}"), **style)
+        colors = iter(plt.cm.tab10.colors)
+        for a in (a for a in ablations if a["meta"]["mode"] == mode):
+            plot_curve(ax, a, run_label(a["meta"], a["name"]), lw=1.2, color=next(colors))
+        for i, (minutes, power) in enumerate(paper_faithful_curves(mode)):
+            label = "Table 1 SAC (paper set, k = 0, total; training episodes)" if i == 0 else None
+            ax.plot(minutes, power, color="0.6", lw=0.9, label=label)
+        ax.axhline(PAPER_TD3_TEST_N5[mode], color="tab:blue", lw=0.9, ls="--")
+        ax.text(0.5, PAPER_TD3_TEST_N5[mode] - 0.035, "paper TD3, 300k steps", fontsize=7)
+        ax.axhline(GOALS_N5[mode], color="tab:green", lw=0.9, ls="--")
+        ax.text(0.5, GOALS_N5[mode] + 0.008, "issue 11 goal", fontsize=7)
+        ax.set_title(f"N = 5, {mode} mode (testing environment)")
+        ax.set_xlabel("training time (minutes, one core)")
+        ax.set_ylim(0, 1.03)
+        ax.legend(fontsize=6.5, loc="lower right")
+    axes[0].set_ylabel("final P_N / P_max (periodic test evaluation, 20 episodes)")
+    fig.suptitle("Learned agents against training time (issue 11); black: shipped models")
     fig.tight_layout()
     out = REPO / "docs" / "figures" / "learned_agents.png"
     fig.savefig(out, dpi=110)

@@ -8,6 +8,10 @@ Usage (after `source setup.bash`):
   python scripts/ship_model.py runs/issue11/n5_hard models/n5_hard [--seeds 100 101 102 103 104]
 Writes models/NAME/{model.zip, metadata.json, learning.csv, eval/...}; the folder is what
 `ros2 run ops_controller_ros policy --ros-args -p model:=models/NAME` and `evaluate` accept.
+
+  python scripts/ship_model.py runs/issue11/n5_easy docs/results/issue11/n5_easy_k0 --curve-only
+keeps only what a figure needs of a run that is not shipped (an ablation): metadata.json and
+learning.csv (kilobytes), no model and no evaluation.
 """
 
 from __future__ import annotations
@@ -51,7 +55,18 @@ def main() -> int:
     ap.add_argument("dest", type=Path, help="the model folder to write, e.g. models/n5_hard")
     ap.add_argument("--seeds", nargs="+", default=HELD_OUT_SEEDS)
     ap.add_argument("--episodes", default="5")
+    ap.add_argument(
+        "--curve-only",
+        action="store_true",
+        help="write only metadata.json (of the run) and learning.csv: an ablation for the figures",
+    )
     args = ap.parse_args()
+    if args.curve_only:
+        args.dest.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(args.run / "metadata.json", args.dest / "metadata.json")
+        n = learning_curve(args.run / "logs" / "progress.csv", args.dest / "learning.csv")
+        print(f"[ship] {args.dest}: metadata and learning curve ({n} evaluations)", flush=True)
+        return 0
     best = args.run / "best"
     for name in ("model.zip", "metadata.json"):
         if not (best / name).is_file():

@@ -41,7 +41,7 @@ ALGOS = ("ppo", "td3", "sac")
 #: Named hyper-parameter sets: ``paper`` (one yaml per algorithm), others one yaml each.
 SETS = ("paper", "fast")
 #: Keys of a set's ``defaults`` block (train options, not SB3 arguments).
-SET_DEFAULT_KEYS = ("algo", "n_envs", "obs_history")
+SET_DEFAULT_KEYS = ("algo", "n_envs", "obs_history", "reward")
 #: Keys the CLI handles itself; everything else goes to the SB3 constructor.
 CLI_KEYS = (
     "normalize_obs",
@@ -76,8 +76,8 @@ def load(algo: str, hp_set: str = "paper") -> dict[str, Any]:
 
 
 def set_defaults(hp_set: str = "paper") -> dict[str, Any]:
-    """The train options a set chooses (``algo``, ``n_envs``, ``obs_history``)."""
-    base = {"algo": "sac", "n_envs": 1, "obs_history": 0}
+    """The train options a set chooses (``algo``, ``n_envs``, ``obs_history``, ``reward``)."""
+    base = {"algo": "sac", "n_envs": 1, "obs_history": 0, "reward": "paper"}
     if hp_set == "paper":
         return base
     defaults = _load_set(hp_set).get("defaults") or {}

@@ -41,6 +41,7 @@ from . import cli_args
 from . import hyperparams as hp
 from .cli_args import strip_ros_args  # noqa: F401  (kept importable from here)
 from .envs import BACKENDS, EPISODE_STEPS, final_powers, make_vec_env
+from .rewards import REWARDS, wrap_training_reward
 
 EXIT_INTERRUPTED = 130
 #: What a model is: a resumed run keeps these (the command line may only repeat them).
@@ -53,6 +54,7 @@ RUN_KEYS = (
     "episode_steps",
     "n_envs",
     "obs_history",
+    "reward",
     "hyperparams_set",
 )
 
@@ -94,6 +96,14 @@ def _add_algorithm_arguments(p) -> None:
         metavar="K",
         help="observation memory: the last K observations and the actions that led to them "
         "(default: the set's; 0, the paper's memoryless observation, for paper)",
+    )
+    p.add_argument(
+        "--reward",
+        choices=REWARDS,
+        default=None,
+        help="what the learner is paid: paper (eq. 3, -(1 - P)^2) or nines (-log10(1 - P) / 3, "
+        "steep near the optimum; ops_gym_bridge.rewards). Evaluations always measure P_N/P_max "
+        "(default: the set's; paper for paper)",
     )
     cli_args.add_key_value_argument(
         p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
@@ -252,6 +262,7 @@ def build_metadata(
         "backend": args.backend,
         "n_envs": args.n_envs,
         "obs_history": args.obs_history,
+        "reward": args.reward,
         "hyperparams_set": args.hyperparams_set,
         "hyperparams": params,
         "interrupted": interrupted,
@@ -400,6 +411,8 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         args.hyperparams_set = "paper"
     if args.obs_history is None:  # ... or before observation memory
         args.obs_history = int(previous["observation_spec"].get("history", 0))
+    if args.reward is None:  # ... or before training rewards
+        args.reward = "paper"
     _fill_set_defaults(args)
     params = _hyperparams(
         previous.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
@@ -408,7 +421,8 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
 
 
 def _fill_set_defaults(args) -> None:
-    """Options not given take the hyper-parameter set's defaults (algo, n_envs, obs_history)."""
+    """Options not given take the hyper-parameter set's defaults (algo, n_envs, obs_history,
+    reward)."""
     try:
         defaults = hp.set_defaults(args.hyperparams_set)
     except ValueError as exc:
@@ -450,6 +464,7 @@ def build_env(run: TrainRun) -> None:
         )
     except ValueError as exc:
         raise TrainError(str(exc)) from None
+    venv = wrap_training_reward(venv, args.reward)
     if run.params.get("normalize_obs", False):
         vn_path = run.out / "vecnormalize.pkl"
         if args.resume and vn_path.exists():
@@ -524,7 +539,8 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     print(
         f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
         f"detector={args.detector} backend={args.backend} n_envs={args.n_envs} "
-        f"obs_history={args.obs_history} hyperparams_set={args.hyperparams_set} "
+        f"obs_history={args.obs_history} reward={args.reward} "
+        f"hyperparams_set={args.hyperparams_set} "
         f"steps {run.start_steps} -> {total}, out={out}",
         flush=True,
     )

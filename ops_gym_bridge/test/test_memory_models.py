@@ -154,7 +154,8 @@ def test_sb3_contrib_algorithms_train_save_and_load(algo, tmp_path):
 
 
 def test_sets_defaults_and_errors():
-    assert hp.set_defaults("paper") == {"algo": "sac", "n_envs": 1, "obs_history": 0}
+    paper = {"algo": "sac", "n_envs": 1, "obs_history": 0, "reward": "paper"}
+    assert hp.set_defaults("paper") == paper
     fast = hp.set_defaults("fast")
     assert fast["n_envs"] > 1 and fast["algo"] in hp.ALL_ALGOS
     for algo in ("sac", "tqc", "crossq", "td3"):
