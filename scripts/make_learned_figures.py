@@ -52,9 +52,10 @@ def load_models() -> list[dict]:
 def table_rows(models: list[dict]) -> list[str]:
     """One markdown row per shipped model."""
     rows = [
-        "| model | N, mode | memory k | training run (one core) | env steps of the kept model "
-        "| held-out test final P_N / P_max | issue 11 goal | paper's TD3 (N = 5, its detector) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| model | N, mode | memory k | training reward | training run (one core) "
+        "| env steps of the kept model | held-out test final P_N / P_max | issue 11 goal "
+        "| paper's TD3 (N = 5, its detector) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for m in models:
         meta, test, curve = m["meta"], m["test"], m["curve"]
@@ -65,6 +66,7 @@ def table_rows(models: list[dict]) -> list[str]:
         paper = f"{PAPER_TD3_TEST_N5[mode]:.3f}" if n5 else "-"
         rows.append(
             f"| `models/{m['name']}` | {n}, {mode} | {meta.get('obs_history', 0)} | "
+            f"{meta.get('reward') or 'paper'} | "
             f"{minutes:.0f} min | {meta['timesteps']:,} | {test['final_power_mean']:.3f} ± "
             f"{test['final_power_std']:.3f} | {goal} | {paper} |"
         )

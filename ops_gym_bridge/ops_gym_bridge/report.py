@@ -490,7 +490,7 @@ def fig11(runs, path: Path, modes) -> None:
         ax.set_title(f"trained on {tm} (N = {stage})")
         ax.grid(alpha=0.3, axis="y")
         if any_:
-            ax.legend(fontsize=8, loc="lower left")
+            ax.legend(fontsize=8, loc="upper right")
         else:
             _empty(ax)
     fig.suptitle("Transfer between modes; " + _coverage(runs), fontsize=9)

@@ -10,7 +10,7 @@ import shutil
 import numpy as np
 import pytest
 from ops_controller_ros.policy_io import PolicyLoadError, PolicyRunner, load_policy
-from ops_sim_ros.observation import pulse_energies_from_trace
+from ops_sim_ros.observation import ObservationSpec, pulse_energies_from_trace
 
 from ops_gym_bridge import hyperparams as hp
 from ops_gym_bridge import train
@@ -149,7 +149,9 @@ def test_sb3_contrib_algorithms_train_save_and_load(algo, tmp_path):
     assert code == 0
     loaded = load_policy(out)
     assert loaded.algo == algo and type(loaded.model).__name__.lower() == algo
-    obs, _ = OpsEnv(stage=2, mode="easy").reset(seed=0)
+    spec = ObservationSpec.from_dict(loaded.observation_spec)
+    assert spec.history == hp.set_defaults("fast")["obs_history"]  # the set's memory
+    obs, _ = OpsEnv(stage=2, mode="easy", observation_options=spec.options()).reset(seed=0)
     assert loaded.predict(obs).shape == (2,)
 
 
