@@ -7,7 +7,7 @@ import subprocess
 
 import numpy as np
 import pytest
-from ros_testing import assert_no_traceback, ros2_command
+from ros_testing import REPO, assert_no_traceback, ros2_command
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
 
@@ -136,4 +136,24 @@ def test_memory_model_closes_the_loop(procs, observer, tmp_path):
     runner.wait_for("history=2")
     runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
     wait_for_moved_setpoints(observer)
+    assert_no_traceback(runner.output)
+
+
+def test_shipped_model_stacks_over_dds(procs, observer):
+    """A shipped model (models/n3_easy, the one the README runs) loaded by the policy node closes
+    the loop with a simulator over DDS and stacks: P_N/P_max held high, well above a random
+    start's (the model's held-out evaluation: 0.95)."""
+    model = REPO / "models" / "n3_easy"
+    procs.ros2(
+        "run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=3", "-p", "mode:=easy", name="sim"
+    )
+    runner = policy(procs, model)
+    runner.wait_for(r"loaded SAC model for stage 3 \(easy mode")
+    runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
+
+    def stacked() -> bool:
+        recent = observer.values("power")[-50:]
+        return len(recent) == 50 and float(np.mean(recent)) >= 0.85
+
+    observer.wait_until(stacked, timeout=60, what="mean P_N/P_max of 50 readings >= 0.85")
     assert_no_traceback(runner.output)
