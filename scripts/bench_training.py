@@ -124,28 +124,10 @@ def throughput(name: str, args) -> dict:
 
 
 def run_candidate(name: str, args) -> dict:
-    import torch
-    from ops_controller_ros.policy_io import algo_class
-    from ops_gym_bridge.envs import make_vec_env
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from ops_gym_bridge import hyperparams as hp
-
     algo, hp_set, n_envs, history, overrides = CANDIDATES[name]
-    torch.set_num_threads(args.torch_threads)
-    params = hp.apply_overrides(hp.load(algo, hp_set), [*overrides, *args.hyperparams], algo)
-    venv = make_vec_env(
-        "inprocess",
-        args.stage,
-        args.mode,
-        "train",
-        n_envs=n_envs,
-        seed=args.seed,
-        overrides={"detector": args.detector},
-        observation_options={"history": history},
-    )
-    kwargs = hp.sb3_kwargs(algo, params, int(np.prod(venv.action_space.shape)))
-    model = algo_class(algo)(env=venv, seed=args.seed, device="cpu", verbose=0, **kwargs)
+    model, venv, _ = build(name, args)
     budget = args.minutes * 60.0
     points: list[dict] = []
 
