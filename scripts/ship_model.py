@@ -11,7 +11,8 @@ Writes models/NAME/{model.zip, metadata.json, learning.csv, eval/...}; the folde
 
   python scripts/ship_model.py runs/issue11/n5_easy docs/results/issue11/n5_easy_k0 --curve-only
 keeps only what a figure needs of a run that is not shipped (an ablation): metadata.json and
-learning.csv (kilobytes), no model and no evaluation.
+learning.csv (kilobytes), no model; with --eval also the held-out evaluation of the run's best
+model (DEST/eval), e.g. for a run with the other detector that is not shipped but is reported.
 """
 
 from __future__ import annotations
@@ -60,13 +61,18 @@ def main() -> int:
         action="store_true",
         help="write only metadata.json (of the run) and learning.csv: an ablation for the figures",
     )
+    ap.add_argument(
+        "--eval",
+        action="store_true",
+        help="with --curve-only: also evaluate RUN/best on the held-out seeds into DEST/eval",
+    )
     args = ap.parse_args()
     if args.curve_only:
         args.dest.mkdir(parents=True, exist_ok=True)
         shutil.copy2(args.run / "metadata.json", args.dest / "metadata.json")
         n = learning_curve(args.run / "logs" / "progress.csv", args.dest / "learning.csv")
         print(f"[ship] {args.dest}: metadata and learning curve ({n} evaluations)", flush=True)
-        return 0
+        return evaluate(args.run / "best", args) if args.eval else 0
     best = args.run / "best"
     for name in ("model.zip", "metadata.json"):
         if not (best / name).is_file():
@@ -77,7 +83,12 @@ def main() -> int:
         shutil.copy2(best / name, args.dest / name)
     n = learning_curve(args.run / "logs" / "progress.csv", args.dest / "learning.csv")
     print(f"[ship] {args.dest}: model, metadata, learning curve ({n} evaluations)", flush=True)
-    cmd = ["ros2", "run", "ops_gym_bridge", "evaluate", str(args.dest), "--seeds", *args.seeds]
+    return evaluate(args.dest, args)
+
+
+def evaluate(model: Path, args) -> int:
+    """`evaluate` of the model folder ``model`` on the held-out seeds, into DEST/eval."""
+    cmd = ["ros2", "run", "ops_gym_bridge", "evaluate", str(model), "--seeds", *args.seeds]
     cmd += ["--episodes", args.episodes, "--out", str(args.dest / "eval"), "--torch-threads", "1"]
     print("[ship] " + " ".join(cmd), flush=True)
     return subprocess.run(cmd).returncode
