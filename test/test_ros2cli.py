@@ -167,10 +167,17 @@ def test_run_real_node_appears_in_node_list(env, shared):
 # --- topics -------------------------------------------------------------------------------
 
 
+def without_discovery_warning(stdout: str, topic: str) -> str:
+    """The output less the real tool's warning, printed (as ros2cli does, on stdout) when the
+    graph has not shown the topic within 3 s: on a loaded machine DDS discovery may take that."""
+    warning = f"WARNING: topic [{topic}] does not appear to be published yet\n"
+    return stdout.removeprefix(warning)
+
+
 def test_pub_then_echo_once(env, shared):
     result = run_ros2("topic", "echo", "/chatter", "--once", env=env)
     assert result.returncode == 0, result.stderr
-    assert result.stdout == "data: hi\n---\n"
+    assert without_discovery_warning(result.stdout, "/chatter") == "data: hi\n---\n"
 
 
 def test_echo_field_and_explicit_type(env, shared):
