@@ -21,7 +21,8 @@ class OpsEnv(gym.Env):
     the actuator's max step per control step; ``"absolute"``: set-points in units of
     ``absolute_action_range_cycles`` optical periods. Observation: see
     :mod:`ops_sim_ros.observation` (``observation_options={"history": k}``: the last k
-    observations with the actions that led to them). Reward: eq. (3), -(1 - P_N/P_max)^2.
+    observations with the actions that led to them; ``{"observation": "authors"}``: the authors'
+    observation set, with the applied delays). Reward: eq. (3), -(1 - P_N/P_max)^2.
     Episodes end by truncation after ``max_episode_steps`` steps, never by termination.
 
     Every episode starts with the set-points at 0 and hidden delay errors drawn as the mode says
@@ -76,9 +77,9 @@ class OpsEnv(gym.Env):
     def _obs_info(self, r: StepResult, action=None) -> tuple[np.ndarray, dict[str, Any]]:
         args = (r.pulse_energies[0], r.power[0], r.setpoints_fs[0])
         if action is None:  # a new episode
-            obs = self._observations.reset(*args)
+            obs = self._observations.reset(*args, applied_fs=r.applied_fs[0])
         else:
-            obs = self._observations.step(*args, action)
+            obs = self._observations.step(*args, action, applied_fs=r.applied_fs[0])
         # The simulation makes fresh arrays every step, so views are safe to hand out.
         info = {
             "power": float(r.power[0]),

@@ -11,7 +11,27 @@ Default layout for N stages (S = 2^N - 1 output slots), float32:
                    wrapped, clipped to +- actuator range (so the policy knows where the actuator
                    limits are)
 
-Each block can be switched off in the spec. That is one *frame*; with ``history = 0`` (the
+Each block can be switched off in the spec. That is the *rig* observation set
+(``ObservationSpec(observation="rig")``, the default): everything in it is measured on a real
+stacker (the detector, and the set-points the controller itself commanded).
+
+The *authors'* set (``observation="authors"``) is what the authors' ``CPS_env`` observes by default
+(``obs_signal = ['power', 'pulse', 'pzm']``, normalized to their box), at our time sampling::
+
+    [0]            power:  AUTHORS_POWER_SCALE * P_N/P_max + AUTHORS_POWER_OFFSET (4.58 P - 1.29,
+                   their box for N = 5 mapped to [-1, 1])
+    [1 : 1+S)      pulse:  2N * slot energy - 1 (their trace samples, box [0, I_max / N])
+    [1+S : 1+S+N)  pzm:    APPLIED delay (set-point + hidden delay-line error) in optical periods
+                   / 3 (their PZM lengths: a double pass, box +-1.5 wavelengths of mirror travel)
+
+The last block is an oracle: the actual delays, noise and drift included, which a rig whose
+disturbances sit in the optical path cannot measure. The simulator has them
+(``StepResult.applied_fs``); every builder below takes them as ``applied_fs``. Left out of the
+authors' observation: their Gaussian observation noise (sigma 1e-4 on these scaled values), the
+rounding of their power to 0.01 of their units and the constant per-environment offset of their
+PZM box (it is centred on the first episode's lengths; ours on the optimum).
+
+That is one *frame*; with ``history = 0`` (the
 default, the paper's observation) the observation is the current frame.
 
 Memory (``ObservationSpec(history=k)``, k >= 1): the observation is the last k frames, each
@@ -37,6 +57,14 @@ import numpy as np
 from .arrays import clip as _clip
 from .config import OpsConfig
 
+#: The observation sets: ``rig`` (what a real stacker measures) and ``authors`` (the authors'
+#: ``CPS_env`` default, with the actual delay-line lengths).
+OBSERVATION_SETS = ("rig", "authors")
+#: The authors' scalings (their ``NormalizedAct`` box at N = 5; see the module docstring).
+AUTHORS_POWER_SCALE = 4.58
+AUTHORS_POWER_OFFSET = -1.29
+AUTHORS_PZM_CYCLES = 3.0  # applied delay in optical periods per unit of their pzm value
+
 
 @dataclass(frozen=True)
 class ObservationSpec:
@@ -47,8 +75,14 @@ class ObservationSpec:
     include_power: bool = True
     include_setpoints: bool = True
     history: int = 0  # 0: the current frame only; k >= 1: the last k frames and their actions
+    observation: str = "rig"  # the observation set: one of OBSERVATION_SETS
 
     def __post_init__(self) -> None:
+        if self.observation not in OBSERVATION_SETS:
+            raise ValueError(
+                f"observation must be one of {', '.join(OBSERVATION_SETS)} "
+                f"(got {self.observation!r})"
+            )
         if isinstance(self.history, bool) or not isinstance(self.history, int | np.integer):
             raise ValueError(f"history must be an integer >= 0 (got {self.history!r})")
         if self.history < 0:
@@ -91,12 +125,18 @@ class ObservationSpec:
             "include_power": self.include_power,
             "include_setpoints": self.include_setpoints,
             "history": self.history,
+            "observation": self.observation,
         }
+
+    @property
+    def needs_applied_delays(self) -> bool:
+        """True for the authors' set: its frames hold the applied delays (a simulator oracle)."""
+        return self.observation == "authors"
 
     def describe(self) -> str:
         """A short human description, e.g. for error messages."""
         memory = f"history={self.history}" if self.history else "no memory"
-        return f"stage {self.stage}, {self.dim} values ({memory})"
+        return f"stage {self.stage}, {self.observation} observation, {self.dim} values ({memory})"
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) of the observation, float32 arrays of length ``dim``."""
@@ -116,15 +156,28 @@ class ObservationSpec:
     @cached_property
     def _frame_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         low, high = [], []
-        if self.include_energies:
-            low.append(np.zeros(self.num_slots))
-            high.append(np.ones(self.num_slots))
-        if self.include_power:
-            low.append(np.zeros(1))
-            high.append(np.ones(1))
-        if self.include_setpoints:
-            low.append(np.full(self.stage, -self.setpoint_limit_cycles))
-            high.append(np.full(self.stage, self.setpoint_limit_cycles))
+        limit = self.setpoint_limit_cycles
+        if self.observation == "authors":
+            n2 = 2.0 * self.stage
+            if self.include_power:
+                low.append([AUTHORS_POWER_OFFSET])
+                high.append([AUTHORS_POWER_SCALE + AUTHORS_POWER_OFFSET])
+            if self.include_energies:
+                low.append(np.full(self.num_slots, -1.0))
+                high.append(np.full(self.num_slots, n2 - 1.0))
+            if self.include_setpoints:
+                low.append(np.full(self.stage, -limit / AUTHORS_PZM_CYCLES))
+                high.append(np.full(self.stage, limit / AUTHORS_PZM_CYCLES))
+        else:
+            if self.include_energies:
+                low.append(np.zeros(self.num_slots))
+                high.append(np.ones(self.num_slots))
+            if self.include_power:
+                low.append(np.zeros(1))
+                high.append(np.ones(1))
+            if self.include_setpoints:
+                low.append(np.full(self.stage, -limit))
+                high.append(np.full(self.stage, limit))
         return (
             np.concatenate(low).astype(np.float32),
             np.concatenate(high).astype(np.float32),
@@ -142,7 +195,8 @@ class ObservationSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ObservationSpec:
-        """The spec of a metadata dict (specs saved before ``history`` existed have none)."""
+        """The spec of a metadata dict (specs saved before ``history`` existed have none, and
+        before observation sets none of ``observation``: the rig's)."""
         known = set(cls.__dataclass_fields__)
         unknown = sorted(set(data) - known)
         if unknown:
@@ -152,7 +206,9 @@ class ObservationSpec:
         return cls(**data)
 
 
-def build_observation(spec: ObservationSpec, pulse_energies, power, setpoints_fs) -> np.ndarray:
+def build_observation(
+    spec: ObservationSpec, pulse_energies, power, setpoints_fs, applied_fs=None
+) -> np.ndarray:
     """The memoryless observation(s) (history 0): the current frame of :func:`build_frame`.
 
     With ``spec.history > 0`` the observation depends on the past: use
@@ -163,14 +219,18 @@ def build_observation(spec: ObservationSpec, pulse_energies, power, setpoints_fs
             f"the observation spec has history={spec.history}: build observations with "
             "ObservationBuilder (it keeps the last frames and actions)"
         )
-    return build_frame(spec, pulse_energies, power, setpoints_fs)
+    return build_frame(spec, pulse_energies, power, setpoints_fs, applied_fs)
 
 
-def build_frame(spec: ObservationSpec, pulse_energies, power, setpoints_fs) -> np.ndarray:
+def build_frame(
+    spec: ObservationSpec, pulse_energies, power, setpoints_fs, applied_fs=None
+) -> np.ndarray:
     """Frame(s) for a batch (B, frame_dim) or a single env (frame_dim,), float32, inside the
     bounds of one frame.
 
-    ``pulse_energies`` (B, S) or (S,), ``power`` (B,) or scalar, ``setpoints_fs`` (B, N) or (N,).
+    ``pulse_energies`` (B, S) or (S,), ``power`` (B,) or scalar, ``setpoints_fs`` (B, N) or (N,);
+    ``applied_fs`` (same shape: set-point + hidden delay error) is needed by the authors' set
+    only (the rig's ignores it).
     """
     e = np.asarray(pulse_energies, dtype=np.float64)
     single = e.ndim == 1
@@ -179,19 +239,44 @@ def build_frame(spec: ObservationSpec, pulse_energies, power, setpoints_fs) -> n
     batch = e2.shape[0]
     low, high = spec._frame_bounds
     obs = np.empty((batch, low.shape[0]), dtype=np.float32)
-    col = 0
-    # Each block is written straight into the float32 array (float64 values rounded once).
-    if spec.include_energies:
-        obs[:, :slots] = e2
-        col = slots
-    if spec.include_power:
-        obs[:, col] = np.asarray(power, dtype=np.float64).reshape(batch)
-        col += 1
-    if spec.include_setpoints:
-        sp = np.asarray(setpoints_fs, dtype=np.float64).reshape(batch, spec.stage)
-        np.multiply(sp, 1.0 / spec.optical_period_fs, out=obs[:, col:])
+    if spec.observation == "authors":
+        _authors_frame(spec, obs, e2, power, applied_fs)
+    else:
+        col = 0
+        # Each block is written straight into the float32 array (float64 values rounded once).
+        if spec.include_energies:
+            obs[:, :slots] = e2
+            col = slots
+        if spec.include_power:
+            obs[:, col] = np.asarray(power, dtype=np.float64).reshape(batch)
+            col += 1
+        if spec.include_setpoints:
+            sp = np.asarray(setpoints_fs, dtype=np.float64).reshape(batch, spec.stage)
+            np.multiply(sp, 1.0 / spec.optical_period_fs, out=obs[:, col:])
     _clip(obs, low, high, out=obs)
     return obs[0] if single else obs
+
+
+def _authors_frame(spec: ObservationSpec, obs, energies, power, applied_fs) -> None:
+    """The authors' blocks (power, pulse, pzm; their order and scalings) into ``obs``."""
+    batch, slots = energies.shape
+    col = 0
+    if spec.include_power:
+        p = np.asarray(power, dtype=np.float64).reshape(batch)
+        obs[:, 0] = AUTHORS_POWER_SCALE * p + AUTHORS_POWER_OFFSET
+        col = 1
+    if spec.include_energies:
+        obs[:, col : col + slots] = 2.0 * spec.stage * energies - 1.0
+        col += slots
+    if spec.include_setpoints:
+        if applied_fs is None:
+            raise ValueError(
+                "the authors' observation holds the applied delays (set-point + hidden delay "
+                "error): pass applied_fs (a simulator-only quantity, /ops/delays_actual over ROS 2)"
+            )
+        d = np.asarray(applied_fs, dtype=np.float64).reshape(batch, spec.stage)
+        scale = 1.0 / (spec.optical_period_fs * AUTHORS_PZM_CYCLES)
+        np.multiply(d, scale, out=obs[:, col:])
 
 
 class ObservationBuilder:
@@ -203,7 +288,8 @@ class ObservationBuilder:
     gets the first frame and a zero action); ``step(..., actions)`` pushes the new frame with the
     action (in [-1, 1]^N, clipped; float32) of the step that produced it. Both return the
     observations of every env (float32, a fresh array). With history 0 both are
-    :func:`build_frame` and no state is kept.
+    :func:`build_frame` and no state is kept. ``applied_fs``: the applied delays, for the
+    authors' set.
     """
 
     def __init__(self, spec: ObservationSpec, num_envs: int | None = None) -> None:
@@ -221,8 +307,8 @@ class ObservationBuilder:
     def has_memory(self) -> bool:
         return self._buf is not None
 
-    def reset(self, pulse_energies, power, setpoints_fs, mask=None) -> np.ndarray:
-        frame = build_frame(self.spec, pulse_energies, power, setpoints_fs)
+    def reset(self, pulse_energies, power, setpoints_fs, mask=None, applied_fs=None) -> np.ndarray:
+        frame = build_frame(self.spec, pulse_energies, power, setpoints_fs, applied_fs)
         if self._buf is None:
             return frame
         rows = slice(None) if mask is None else np.asarray(mask, dtype=bool).reshape(-1)
@@ -232,8 +318,8 @@ class ObservationBuilder:
         self._started[rows] = True
         return self._output()
 
-    def step(self, pulse_energies, power, setpoints_fs, actions) -> np.ndarray:
-        frame = build_frame(self.spec, pulse_energies, power, setpoints_fs)
+    def step(self, pulse_energies, power, setpoints_fs, actions, applied_fs=None) -> np.ndarray:
+        frame = build_frame(self.spec, pulse_energies, power, setpoints_fs, applied_fs)
         if self._buf is None:
             return frame
         if not self._started.all():

@@ -67,12 +67,16 @@ class _BatchCore:
         else:
             a = np.asarray(actions, dtype=np.float64)
             r = self.sim.step_setpoints(np.clip(a, -1.0, 1.0) * self._abs_scale)
-        obs = self._observations.step(r.pulse_energies, r.power, r.setpoints_fs, actions)
+        obs = self._observations.step(
+            r.pulse_energies, r.power, r.setpoints_fs, actions, applied_fs=r.applied_fs
+        )
         return r, obs
 
     def _reset_obs(self, r: StepResult, mask=None) -> np.ndarray:
         """Observations after new episodes started (all, or where ``mask`` is True)."""
-        return self._observations.reset(r.pulse_energies, r.power, r.setpoints_fs, mask)
+        return self._observations.reset(
+            r.pulse_energies, r.power, r.setpoints_fs, mask, applied_fs=r.applied_fs
+        )
 
     @staticmethod
     def _info_arrays(r: StepResult) -> dict[str, Any]:

@@ -119,3 +119,48 @@ def test_batched_builder_equals_single_and_resets_by_mask():
     np.testing.assert_array_equal(
         plain.step(e, p, sp, a), build_frame(ObservationSpec(stage=2), e, p, sp)
     )
+
+
+# ------------------------------------------------------------------ the authors' observation set
+def _known_state(observation):
+    from ops_sim_ros import OpsEnv
+
+    env = OpsEnv(stage=5, mode="easy", observation_options={"observation": observation})
+    period = env.config.optical_period_fs
+    setpoints = np.array([0.5, -0.25, 0.0, 0.1, 0.0]) * period
+    errors = np.array([0.15, 0.0, -0.2, 0.0, 0.05]) * period
+    obs, info = env.reset(seed=3, options={"setpoints_fs": setpoints, "delay_errors_fs": errors})
+    return env, obs, info, setpoints, errors
+
+
+def test_authors_set_holds_the_applied_delays_scaled_as_documented():
+    env, obs, info, setpoints, errors = _known_state("authors")
+    period = env.config.optical_period_fs
+    applied = setpoints + errors
+    np.testing.assert_allclose(info["delays_fs"], applied, atol=1e-9)
+    assert obs.shape == (1 + 31 + 5,) and obs in env.observation_space
+    # [power, 31 trace samples, 5 PZM values], the authors' order and scalings
+    assert obs[0] == pytest.approx(4.58 * info["power"] - 1.29, abs=1e-5)
+    energies = env.sim.last.pulse_energies[0]
+    np.testing.assert_allclose(obs[1:32], 2 * 5 * energies - 1, atol=1e-5)
+    np.testing.assert_allclose(obs[32:], applied / period / 3.0, atol=1e-6)
+    # the rig's set of the same state holds the commanded set-points, not the applied delays
+    _, rig, _, _, _ = _known_state("rig")
+    np.testing.assert_allclose(rig[-5:], setpoints / period, atol=1e-6)
+    # after a step the walk has moved the delay lines: the authors' set follows it
+    obs2, _, _, _, info2 = env.step(np.zeros(5, dtype=np.float32))
+    np.testing.assert_allclose(obs2[32:], info2["delays_fs"] / period / 3.0, atol=1e-6)
+    assert not np.allclose(info2["delays_fs"], applied)
+
+
+def test_authors_set_needs_the_applied_delays_and_round_trips():
+    spec = ObservationSpec(stage=2, observation="authors", history=2)
+    assert ObservationSpec.from_dict(spec.to_dict()) == spec
+    assert spec.options()["observation"] == "authors" and "authors" in spec.describe()
+    with pytest.raises(ValueError, match="applied_fs"):
+        build_frame(spec, np.zeros(3), 0.5, np.zeros(2))
+    with pytest.raises(ValueError, match="rig, authors"):
+        ObservationSpec(stage=2, observation="oracle")
+    # specs saved before observation sets are the rig's
+    old = {k: v for k, v in ObservationSpec(stage=2).to_dict().items() if k != "observation"}
+    assert ObservationSpec.from_dict(old).observation == "rig"
