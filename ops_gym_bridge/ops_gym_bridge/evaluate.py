@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from ops_sim_ros.config import SPLITS, make_config
 
-from . import cli_args
+from . import cli_args, continuous
 from .envs import EPISODE_STEPS
 from .recording import new_bag_path
 from .rollouts import rollout_controller, rollout_policy
@@ -85,6 +85,14 @@ def build_parser():
     )
     p.add_argument("--steps", type=int, default=EPISODE_STEPS, help="steps per episode")
     p.add_argument("--out", help="output directory (default: MODEL/eval, or ./eval_CONTROLLER)")
+    p.add_argument(
+        "--continuous",
+        type=int,
+        metavar="STEPS",
+        help="instead of episodes: one run of STEPS steps per seed and split, noise and drift "
+        "running all the time; reports lock fraction, lock losses, worst reading "
+        "(ops_gym_bridge.continuous)",
+    )
     p.add_argument(
         "--record", metavar="DIR", type=new_bag_path, help="also record a bag of episodes"
     )
@@ -347,7 +355,10 @@ def run(argv: list[str] | None = None) -> int:
         torch.set_num_threads(args.torch_threads)
     try:
         subject = resolve_subject(args)
-        results = evaluate(args, subject)
+        if args.continuous is not None:
+            results = continuous.evaluate(args, subject)
+        else:
+            results = evaluate(args, subject)
     except (EvaluationError, ValueError) as exc:
         print(f"[evaluate] error: {exc}", file=sys.stderr, flush=True)
         return 2
@@ -359,6 +370,11 @@ def run(argv: list[str] | None = None) -> int:
         out = resolve_paths(args.model)[0].parent / "eval"
     else:
         out = Path(f"eval_{args.controller}")
+    if args.continuous is not None:
+        written = continuous.write_outputs(results, out, plot=not args.no_plot)
+        print(continuous.format_table(results))
+        print(f"[evaluate] wrote {', '.join(str(p) for p in written)}", flush=True)
+        return 0
     written = write_outputs(results, out, plot=not args.no_plot)
     if args.record:
         from .recording import record_episodes
