@@ -101,6 +101,10 @@ class LockstepClient:
             TOPIC_INTENSITY,
             TOPIC_POWER,
             TOPIC_REWARD,
+            MessageGuard,
+            delays_from_msg,
+            power_from_msg,
+            trace_from_msg,
         )
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -120,16 +124,26 @@ class LockstepClient:
             self._executor.add_node(self._node)
             self._queues: dict[str, deque] = {t: deque() for t in _TOPICS}
             topics = {
-                "intensity": (Float32MultiArray, TOPIC_INTENSITY),
-                "power": (Float32, TOPIC_POWER),
-                "reward": (Float32, TOPIC_REWARD),
-                "delays": (Float32MultiArray, TOPIC_DELAYS),
+                "intensity": (Float32MultiArray, TOPIC_INTENSITY, trace_from_msg),
+                "power": (Float32, TOPIC_POWER, power_from_msg),
+                "reward": (Float32, TOPIC_REWARD, power_from_msg),
+                "delays": (Float32MultiArray, TOPIC_DELAYS, delays_from_msg),
             }
+            guard = MessageGuard(self._node)
+
+            def receive(msg, key, topic, check):
+                # Malformed messages are dropped (warned), as by every node: one rule.
+                if guard.take(topic, check, msg) is not None:
+                    self._queues[key].append(msg)
+
             self._subs = [
                 self._node.create_subscription(
-                    msg_type, topic, lambda m, q=self._queues[key]: q.append(m), QOS_RELIABLE
+                    msg_type,
+                    topic,
+                    lambda m, k=key, t=topic, c=check: receive(m, k, t, c),
+                    QOS_RELIABLE,
                 )
-                for key, (msg_type, topic) in topics.items()
+                for key, (msg_type, topic, check) in topics.items()
             ]
             self._pub = self._node.create_publisher(
                 Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE

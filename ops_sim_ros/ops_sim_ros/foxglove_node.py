@@ -26,9 +26,8 @@ PARAMS = [
         "discovery_period_s",
         1.0,
         "how often the graph is checked for new topics",
-        low=0.0,
+        low=0.1,
         high=60.0,
-        low_exclusive=True,
     ),
 ]
 

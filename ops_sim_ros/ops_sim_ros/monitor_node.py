@@ -26,7 +26,9 @@ from .ros_interface import (
     QOS_RELIABLE,
     TOPIC_INTENSITY,
     TOPIC_POWER,
+    MessageGuard,
     ParameterError,
+    power_from_msg,
     run_node,
     trace_from_msg,
 )
@@ -39,28 +41,30 @@ PARAMS = [
         "frame_period_s",
         0.1,
         "time between recorded or drawn frames",
-        low=0.0,
+        low=0.01,
         high=60.0,
-        low_exclusive=True,
     ),
     ParamSpec(
         "png_period_s",
         2.0,
         "how often a .png record is rewritten",
-        low=0.0,
+        low=0.1,
         high=3600.0,
-        low_exclusive=True,
     ),
     ParamSpec(
-        "max_frames", 600, "largest number of frames kept for .gif / .mp4", low=1, high=100000
+        # A frame is ~1 MB in memory: 3000 frames are ~3 GB.
+        "max_frames",
+        600,
+        "largest number of frames kept for .gif / .mp4",
+        low=1,
+        high=3000,
     ),
     ParamSpec(
         "pulse_spacing_ns",
         12.5,
         "pulse spacing T for the time axis",
-        low=0.0,
-        high=1e9,
-        low_exclusive=True,
+        low=1e-3,
+        high=1e6,
     ),
 ]
 
@@ -94,6 +98,7 @@ class MonitorNode(Node):
         self._readings = 0
         self._figure = None
         self._dirty = False
+        self._guard = MessageGuard(self)
 
         self.create_subscription(Float32MultiArray, TOPIC_INTENSITY, self._on_trace, QOS_RELIABLE)
         self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
@@ -105,20 +110,21 @@ class MonitorNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _on_trace(self, msg: Float32MultiArray):
-        trace, samples = trace_from_msg(msg)
-        if trace.size == 0 or not np.all(np.isfinite(trace)):
+        trace = self._guard.take(TOPIC_INTENSITY, trace_from_msg, msg)
+        if trace is None:
             return
-        self._latest = (trace, samples)
+        self._latest = trace
         self._dirty = True
 
     def _on_power(self, msg: Float32):
-        if not np.isfinite(msg.data):
+        power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
+        if power is None:
             return
-        self._powers.append(float(msg.data))
+        self._powers.append(power)
         self._readings += 1
         if self._first is None and self._latest is not None:
-            self._first = (*self._latest, float(msg.data))
-            self.get_logger().info(f"first trace received: P_N/P_max = {msg.data:.4f}")
+            self._first = (*self._latest, power)
+            self.get_logger().info(f"first trace received: P_N/P_max = {power:.4f}")
 
     # ------------------------------------------------------------------ drawing
     def _draw(self, fig):

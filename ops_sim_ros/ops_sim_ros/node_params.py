@@ -6,13 +6,24 @@ fixed after start). :func:`declare_all` declares them with ``ParameterDescriptor
 in ``ros2 param describe``) and turns any bad value into a :class:`ParameterError` that names the
 parameter and the allowed values; :func:`check_change` validates a runtime change the same way.
 A float parameter takes an integer as well (``-p rate_hz:=50``, ``ros2 param set ... rate_hz 50``).
+
+Live changes: :func:`declare_all` installs one validating callback per node. A node that can apply
+a change passes ``on_change`` (an rclpy on-set callback, called once the values are valid); every
+parameter of a node without one is fixed after start, so no change ever answers "successful" and
+does nothing. ``use_sim_time`` cannot be switched on while a node runs (its timers would stop).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -30,6 +41,7 @@ class ParamSpec:
     choices: tuple[str, ...] = ()  # allowed strings
     low_exclusive: bool = False  # True: value must be > low
     read_only: bool = False  # True: fixed while the node runs (a change is refused with why)
+    special: tuple = ()  # values allowed outside the range (e.g. -1: "the mode's default")
 
     @property
     def allowed(self) -> str:
@@ -39,10 +51,12 @@ class ParamSpec:
         if kind == "bool":
             return "true or false"
         if self.low is not None and self.high is not None:
-            return f"{kind} in {'(' if self.low_exclusive else '['}{self.low}, {self.high}]"
-        if self.low is not None:
-            return f"{kind} {'>' if self.low_exclusive else '>='} {self.low}"
-        return kind
+            text = f"{kind} in {'(' if self.low_exclusive else '['}{self.low}, {self.high}]"
+        elif self.low is not None:
+            text = f"{kind} {'>' if self.low_exclusive else '>='} {self.low}"
+        else:
+            text = kind
+        return " or ".join([*(f"{v:g}" for v in self.special), text])
 
     def descriptor(self) -> ParameterDescriptor:
         # read_only is enforced by check_change (with a reason naming the parameter), not by
@@ -55,7 +69,9 @@ class ParamSpec:
         )
         # Ranges are checked by check_value (for a clear message); the descriptor carries them
         # for tools, with both ends set as ROS requires.
-        if isinstance(self.default, int) and not isinstance(self.default, bool):
+        if self.special:
+            pass  # the allowed values are not one interval: only check_value knows them
+        elif isinstance(self.default, int) and not isinstance(self.default, bool):
             if self.low is not None and self.high is not None:
                 d.integer_range = [
                     IntegerRange(from_value=int(self.low), to_value=int(self.high), step=1)
@@ -85,6 +101,8 @@ def check_value(spec: ParamSpec, value) -> str | None:
     if want in (int, float):
         if value != value:  # NaN
             return f"{spec.name} must be {spec.allowed} (got {value!r})"
+        if value in spec.special:
+            return None
         too_low = spec.low is not None and (
             value <= spec.low if spec.low_exclusive else value < spec.low
         )
@@ -108,12 +126,17 @@ def _float_spec_names(specs: list[ParamSpec]) -> set[str]:
     return {s.name for s in specs if isinstance(s.default, float)}
 
 
-def declare_all(node: Node, specs: list[ParamSpec]) -> dict:
+def declare_all(
+    node: Node,
+    specs: list[ParamSpec],
+    on_change: Callable[[list[Parameter]], SetParametersResult] | None = None,
+) -> dict:
     """Declare every parameter; return their values, or raise ParameterError naming the bad one.
 
     A float parameter is declared dynamically typed, so that an integer given on the command line
     is taken, then made a static double; runtime integers are turned into doubles before rclpy
-    checks their type (a pre-set callback)."""
+    checks their type (a pre-set callback). Runtime changes are validated (:func:`check_change`)
+    before ``on_change`` sees them; without ``on_change`` every parameter of ``specs`` is fixed."""
     values = {}
     floats = _float_spec_names(specs)
     for spec in specs:
@@ -137,7 +160,34 @@ def declare_all(node: Node, specs: list[ParamSpec]) -> dict:
             node.set_descriptor(spec.name, static, msg_value)
         values[spec.name] = value
     node.add_pre_set_parameters_callback(lambda params: _ints_to_floats(params, floats))
+    by_name = {s.name: s for s in specs}
+    if on_change is None:  # nothing can apply a change: every parameter is fixed
+        by_name = {n: replace(s, read_only=True) for n, s in by_name.items()}
+    node.add_on_set_parameters_callback(lambda params: _validate(node, by_name, params, on_change))
     return values
+
+
+def _validate(node: Node, specs: dict[str, ParamSpec], params, on_change) -> SetParametersResult:
+    """The on-set callback of :func:`declare_all`: refuse with a reason, or pass to on_change."""
+    ours = []
+    for p in params:
+        if p.name == "use_sim_time":
+            if p.value != node.get_parameter("use_sim_time").value:
+                return SetParametersResult(
+                    successful=False,
+                    reason="use_sim_time cannot change while the node runs (its timers would "
+                    "wait for /clock); restart the node with -p use_sim_time:=true",
+                )
+            continue
+        if p.name not in specs:
+            continue  # another declare_all's, or rclpy's own
+        problem = check_change(specs, p.name, coerce(specs[p.name], p.value))
+        if problem:
+            return SetParametersResult(successful=False, reason=problem)
+        ours.append(p)
+    if ours and on_change is not None:
+        return on_change(ours)
+    return SetParametersResult(successful=True)
 
 
 def _ints_to_floats(params: list[Parameter], floats: set[str]) -> list[Parameter]:

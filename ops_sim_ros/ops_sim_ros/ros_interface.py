@@ -2,6 +2,11 @@
 
 Topic names are relative (``ops/...``) so that ``--ros-args -r __ns:=/rig2`` moves a whole rig.
 Delays are femtoseconds relative to each stage's nominal stacking delay (see docs/interfaces.md).
+
+Every message a node takes in goes through one rule (:func:`delays_from_msg`,
+:func:`trace_from_msg`, :func:`power_from_msg`, :func:`check_layout`): shape, layout, finiteness and
+magnitude; what breaks it is dropped with a throttled warning (:class:`MessageGuard`), so no
+message can stop a node.
 """
 
 from __future__ import annotations
@@ -9,6 +14,7 @@ from __future__ import annotations
 import array
 import math
 import sys
+import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -17,6 +23,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
+
+from .config import LIMITS, MAX_STAGE
 
 TOPIC_INTENSITY = "ops/intensity"
 TOPIC_POWER = "ops/power"
@@ -47,6 +55,16 @@ class NodeFatalError(RuntimeError):
     """The node met a condition it cannot run on (e.g. a model for another stage)."""
 
 
+class MessageError(ValueError):
+    """A message a node cannot use: it is dropped (see :class:`MessageGuard`)."""
+
+
+#: Largest magnitude of a reading (normalized power, reward, trace sample) and of a delay (fs) in
+#: a message; beyond them a message is malformed, not a measurement.
+MAX_READING = 1.0e3
+MAX_DELAY_FS = 1.0e6
+
+
 def float_array_msg(values, labels: Sequence[str] = ("stage",)) -> Float32MultiArray:
     """A Float32MultiArray with its layout filled (one dimension per label, row-major)."""
     arr = np.asarray(values, dtype=np.float32)
@@ -70,12 +88,106 @@ def trace_msg(trace: np.ndarray, samples_per_slot: int) -> Float32MultiArray:
     return float_array_msg(trace, labels=("slot", "sample"))
 
 
+def layout_shape(msg: Float32MultiArray) -> tuple[int, ...]:
+    """The shape an array message's layout declares ((len(data),) when it has none).
+
+    MessageError when the layout does not describe the data (sizes whose product is not the
+    number of values, a data offset)."""
+    n = len(msg.data)
+    if msg.layout.data_offset != 0:
+        raise MessageError(f"layout data_offset is {msg.layout.data_offset}, expected 0")
+    if not msg.layout.dim:
+        return (n,)
+    shape = tuple(int(d.size) for d in msg.layout.dim)
+    if math.prod(shape) != n:
+        raise MessageError(
+            f"layout says {' x '.join(map(str, shape))} but the message has {n} values"
+        )
+    return shape
+
+
+def check_layout(msg: Float32MultiArray) -> str | None:
+    """Why an array message's layout does not describe its data, or None."""
+    try:
+        layout_shape(msg)
+    except MessageError as exc:
+        return str(exc)
+    return None
+
+
+def _bounded(data, limit: float, what: str) -> np.ndarray:
+    arr = np.asarray(data, dtype=np.float32)
+    bad = np.flatnonzero(~(np.abs(arr) <= limit))  # NaN, inf and too large
+    if bad.size:
+        i = int(bad[0])
+        raise MessageError(f"{what} {arr[i]!r} at index {i} (allowed: finite, |x| <= {limit:g})")
+    return arr
+
+
+def delays_from_msg(msg: Float32MultiArray) -> np.ndarray:
+    """The set-points (fs) of an ``ops/delays`` message; MessageError when it is malformed."""
+    shape = layout_shape(msg)
+    if len(shape) != 1 or not 1 <= shape[0] <= MAX_STAGE:
+        raise MessageError(
+            f"delays of shape {shape}: expected one value per stage, 1 to {MAX_STAGE} values"
+        )
+    return _bounded(msg.data, MAX_DELAY_FS, "delay").astype(np.float64)
+
+
 def trace_from_msg(msg: Float32MultiArray) -> tuple[np.ndarray, int]:
-    """Flat trace and samples per slot from an intensity message (inverse of :func:`trace_msg`)."""
-    data = np.asarray(msg.data, dtype=np.float32)
-    dims = msg.layout.dim
-    samples = int(dims[1].size) if len(dims) >= 2 and dims[1].size > 0 else 1
-    return data, samples
+    """Flat trace and samples per slot from an intensity message (inverse of :func:`trace_msg`).
+
+    MessageError unless the layout is (slot, sample) (or flat: one sample per slot) with 2^N - 1
+    slots, N = 1 .. MAX_STAGE, samples per slot within ``LIMITS``, and finite, bounded values."""
+    shape = layout_shape(msg)
+    if len(shape) not in (1, 2):
+        raise MessageError(f"trace of shape {shape}: expected (slot, sample)")
+    slots, samples = (shape[0], 1) if len(shape) == 1 else shape
+    low, high = LIMITS["samples_per_slot"]
+    if not low <= samples <= high:
+        raise MessageError(f"{samples} samples per slot (allowed: {low} to {high})")
+    stage = (slots + 1).bit_length() - 1
+    if slots + 1 != 2**stage or not 1 <= stage <= MAX_STAGE:
+        raise MessageError(f"{slots} pulse slots (a stage-N trace has 2^N - 1, N = 1 .. 10)")
+    return _bounded(msg.data, MAX_READING, "trace sample"), samples
+
+
+def power_from_msg(msg) -> float:
+    """The value of an ``ops/power`` (or ``ops/reward``) message; MessageError unless finite and
+    within +-MAX_READING."""
+    return float(_bounded([msg.data], MAX_READING, "reading")[0])
+
+
+class MessageGuard:
+    """Takes messages through a check; drops those it rejects, with one warning per topic at
+    most every ``period_s`` that counts the drops and names the latest reason."""
+
+    def __init__(self, node: Node, period_s: float = 5.0):
+        self._node = node
+        self.period_s = float(period_s)
+        self.dropped: dict[str, int] = {}
+        self._warned: dict[str, tuple[float, int]] = {}  # topic -> (time, drops then)
+
+    def take(self, topic: str, check: Callable, msg):
+        """``check(msg)``, or None when it raises MessageError (the message is dropped)."""
+        try:
+            return check(msg)
+        except MessageError as exc:
+            self.drop(topic, str(exc))
+            return None
+
+    def drop(self, topic: str, reason: str) -> None:
+        count = self.dropped[topic] = self.dropped.get(topic, 0) + 1
+        now = time.monotonic()
+        last, before = self._warned.get(topic, (float("-inf"), 0))
+        if now - last < self.period_s:
+            return
+        self._warned[topic] = (now, count)
+        new = count - before
+        self._node.get_logger().warning(
+            f"dropped {new} malformed message{'s' if new > 1 else ''} on "
+            f"{self._node.resolve_topic_name(topic)}: {reason}"
+        )
 
 
 def check_command(values: Sequence[float], stage: int) -> str | None:

@@ -34,6 +34,7 @@ from .ros_interface import (
     TOPIC_REWARD,
     ParameterError,
     check_command,
+    check_layout,
     float_array_msg,
     run_node,
     trace_msg,
@@ -74,7 +75,7 @@ PARAMS = [
         "seed", -1, "random seed; -1 draws one from the OS", low=-1, high=2**31 - 1, read_only=True
     ),
     ParamSpec(
-        "rate_hz", 100.0, "free-running step rate", low=0.0, high=100000.0, low_exclusive=True
+        "rate_hz", 100.0, "free-running step rate (a rig's: 1 Hz to 1 kHz)", low=1.0, high=1000.0
     ),
     ParamSpec("lockstep", False, "true: one step per command instead of a timer"),
     ParamSpec(
@@ -89,13 +90,14 @@ PARAMS = [
         "diagnostics_period_s",
         1.0,
         "period of /diagnostics status",
-        low=0.0,
+        low=0.1,
         high=3600.0,
-        low_exclusive=True,
     ),
     # -1 means "the mode's default"; otherwise the config's range (LIMITS) applies.
     *[
-        ParamSpec(name, -1.0, desc + " (-1: mode default)", low=-1.0, high=LIMITS[name][1])
+        ParamSpec(
+            name, -1.0, desc + " (-1: mode default)", low=0.0, high=LIMITS[name][1], special=(-1.0,)
+        )
         for name, desc in _CONFIG_OVERRIDES
     ],
 ]
@@ -125,7 +127,7 @@ def config_from_params(values: dict):
 class SimNode(Node):
     def __init__(self):
         super().__init__("ops_sim")
-        self._values = declare_all(self, PARAMS)
+        self._values = declare_all(self, PARAMS, on_change=self._on_set_parameters)
         self._config = config_from_params(self._values)
         seed = None if self._values["seed"] < 0 else self._values["seed"]
         self._sim = BatchedSimulation(self._config, num_envs=1, seed=seed)
@@ -147,7 +149,6 @@ class SimNode(Node):
         self._timer = None
         self._diag_timer = None
         self._restart_timers()
-        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
             f"stage={self._config.stage} mode={self._config.mode} split={self._config.split} "
             f"detector={self._config.detector} "
@@ -230,7 +231,7 @@ class SimNode(Node):
     # ------------------------------------------------------------------ inputs
     def _on_command(self, msg: Float32MultiArray):
         values = list(msg.data)
-        problem = check_command(values, self._config.stage)
+        problem = check_layout(msg) or check_command(values, self._config.stage)
         if problem:
             self.get_logger().warning(
                 f"rejected delay command: {problem}; set-points unchanged",
@@ -267,7 +268,6 @@ class SimNode(Node):
             value = coerce(_SPECS[p.name], p.value)
             problem = check_change(_SPECS, p.name, value)
             if problem:
-                problem = problem.replace("while the node runs", "while the simulator runs")
                 return SetParametersResult(successful=False, reason=problem)
             new[p.name] = value
         try:
