@@ -17,7 +17,8 @@ Metadata (``metadata.json``, ``format_version`` 1)::
     max_step_fs       the actuator's largest set-point change per step (fs)
     observation_spec  ObservationSpec.to_dict() of ops_sim_ros.observation (``history``: the
                       number of past observations and actions in each observation; 0 or absent:
-                      none, the paper's observation)
+                      none, the paper's observation; ``observation``: the observation set,
+                      "rig" or "authors"; absent: "rig")
     observation_shape, action_shape   shapes of the spaces (lists of ints)
     config            OpsConfig.to_dict() of the training environment
     normalization     null, or {"obs_mean": [...], "obs_var": [...], "clip_obs": float,
@@ -353,15 +354,18 @@ class PolicyRunner:
         """The next reading starts a new history (e.g. after the simulator was reset)."""
         self._last_action = None
 
-    def observe(self, pulse_energies, power, setpoints_fs) -> np.ndarray:
-        """The observation of a reading, as the model saw observations in training."""
+    def observe(self, pulse_energies, power, setpoints_fs, applied_fs=None) -> np.ndarray:
+        """The observation of a reading, as the model saw observations in training
+        (``applied_fs``: the applied delays, needed by a model of the authors' set)."""
         if self._last_action is None:
-            return self._builder.reset(pulse_energies, power, setpoints_fs)
-        return self._builder.step(pulse_energies, power, setpoints_fs, self._last_action)
+            return self._builder.reset(pulse_energies, power, setpoints_fs, applied_fs=applied_fs)
+        return self._builder.step(
+            pulse_energies, power, setpoints_fs, self._last_action, applied_fs=applied_fs
+        )
 
-    def act(self, pulse_energies, power, setpoints_fs) -> np.ndarray:
+    def act(self, pulse_energies, power, setpoints_fs, applied_fs=None) -> np.ndarray:
         """The action (float32, [-1, 1]^N) for a reading; it is remembered for the next one."""
-        obs = self.observe(pulse_energies, power, setpoints_fs)
+        obs = self.observe(pulse_energies, power, setpoints_fs, applied_fs)
         self.last_observation = obs
         action = np.asarray(self.policy.predict(obs), dtype=np.float32).reshape(-1)
         self._last_action = action
@@ -374,4 +378,26 @@ def check_stage(loaded: LoadedPolicy, sim_stage: int) -> None:
         raise PolicyLoadError(
             f"model was trained for stage {loaded.stage} but the simulator runs stage "
             f"{int(sim_stage)}"
+        )
+
+
+def observation_set_of(metadata: dict) -> str:
+    """The observation set a model was trained on ("rig" for metadata from before the sets)."""
+    return str(dict(metadata.get("observation_spec") or {}).get("observation", "rig"))
+
+
+def check_observation(metadata: dict, observation: str, where: str = "--observation") -> None:
+    """Refuse to run a model on another observation set than it was trained on."""
+    trained = observation_set_of(metadata)
+    if trained != observation:
+        oracle = (
+            " (the authors' set holds the actual delay-line lengths, a simulator-only oracle "
+            "published on ops/delays_actual)"
+            if "authors" in (trained, observation)
+            else ""
+        )
+        raise PolicyLoadError(
+            f"the model was trained on the {trained!r} observation set but is asked to run on "
+            f"the {observation!r} one; a policy only runs on the observation it was trained on: "
+            f"set {where}{'' if where.endswith('=') else ' '}{trained}{oracle}"
         )

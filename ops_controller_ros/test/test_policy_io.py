@@ -191,3 +191,18 @@ def test_save_refuses_incomplete_metadata(tmp_path):
     with pytest.raises(PolicyLoadError, match="lacks the key"):
         save_metadata(tmp_path, {"algo": "sac"})
     assert not (tmp_path / METADATA_FILE).exists()
+
+
+def test_a_model_runs_only_on_its_observation_set(model_dir):
+    from ops_controller_ros.policy_io import check_observation, observation_set_of
+
+    meta = read_metadata(model_dir)
+    spec = {k: v for k, v in meta["observation_spec"].items() if k != "observation"}
+    old = {**meta, "observation_spec": spec}
+    assert observation_set_of(old) == "rig"  # saved before observation sets: the rig's
+    check_observation(old, "rig")
+    with pytest.raises(PolicyLoadError, match=r"trained on the 'rig' observation set.*'authors'"):
+        check_observation(meta, "authors")
+    authors = {**meta, "observation_spec": {**meta["observation_spec"], "observation": "authors"}}
+    with pytest.raises(PolicyLoadError, match=r"set -p observation:=authors .*ops/delays_actual"):
+        check_observation(authors, "rig", "-p observation:=")

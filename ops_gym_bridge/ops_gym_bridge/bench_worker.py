@@ -77,68 +77,54 @@ def env_overrides(spec: dict) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------ evaluation
+def observation_options(spec: dict) -> dict[str, Any]:
+    """The observation of a run's models (the benchmark trains without memory)."""
+    return {"observation": spec.get("observation", "rig")}
+
+
+def _eval_config(spec: dict, mode: str, split: str):
+    from ops_sim_ros.config import make_config
+
+    steps = int(spec["eval"]["steps"])
+    return make_config(
+        stage=spec["stage"], mode=mode, split=split, episode_steps=steps, **env_overrides(spec)
+    )
+
+
 def rollout_model(model, spec: dict, mode: str, split: str, seed: int) -> dict[str, np.ndarray]:
-    """``episodes`` parallel episodes of ``model`` (deterministic) on one environment."""
-    from ops_sim_ros.vec_env import OpsVectorEnv
+    """``episodes`` episodes of ``model`` (deterministic) on one environment: the episodes the
+    controllers run (:func:`ops_gym_bridge.rollouts.policy_episodes`)."""
+    from .rollouts import policy_episodes
 
     ev = spec["eval"]
-    n, steps = int(ev["episodes"]), int(ev["steps"])
-    env = OpsVectorEnv(
-        num_envs=n,
-        stage=spec["stage"],
-        mode=mode,
-        split=split,
-        max_episode_steps=steps,
-        **env_overrides(spec),
+    return policy_episodes(
+        lambda obs: model.predict(obs, deterministic=True)[0],
+        _eval_config(spec, mode, split),
+        int(ev["episodes"]),
+        int(ev["steps"]),
+        seed,
+        observation_options(spec),
     )
-    try:
-        obs, info = env.reset(seed=seed)
-        power = np.empty((n, steps + 1))
-        power[:, 0] = np.asarray(info["power"], dtype=np.float64)
-        for t in range(steps):
-            actions, _ = model.predict(obs, deterministic=True)
-            obs, _, _, _, info = env.step(actions)
-            final = info.get("final_info") if t == steps - 1 else None
-            src = final if final is not None and "power" in final else info
-            power[:, t + 1] = np.asarray(src["power"], dtype=np.float64)
-        return {"power": power}
-    finally:
-        env.close()
 
 
 def rollout_controller(spec: dict, mode: str, split: str, seed: int) -> dict[str, np.ndarray]:
     """Episodes of a no-training controller, driven as its node drives the simulator
-    (absolute set-points, one measurement per command)."""
-    from ops_controller_ros.controllers import make_controller
+    (absolute set-points, one measurement per command; :func:`rollouts.rollout_controller`)."""
     from ops_sim_ros.config import make_config
 
-    from ops_sim_ros import OpsEnv
+    from .rollouts import rollout_controller as run_controller
 
     ev = spec["eval"]
-    n, steps = int(ev["episodes"]), int(ev["steps"])
     nominal = make_config(stage=spec["stage"], detector=spec["detector"])
-    env = OpsEnv(
-        stage=spec["stage"], mode=mode, split=split, max_episode_steps=steps, **env_overrides(spec)
+    return run_controller(
+        spec["controller"],
+        spec.get("controller_params") or {},
+        nominal,
+        _eval_config(spec, mode, split),
+        int(ev["episodes"]),
+        int(ev["steps"]),
+        seed,
     )
-    power = np.empty((n, steps + 1))
-    try:
-        for e in range(n):
-            _, info = env.reset(seed=seed * 1000 + e)
-            ctl = make_controller(
-                spec["controller"],
-                nominal,
-                spec.get("controller_params") or {},
-                setpoints_fs=info["setpoints_fs"],
-                seed=seed * 1000 + e,
-            )
-            power[e, 0] = info["power"]
-            for t in range(steps):
-                r = env.sim.step_setpoints(np.asarray(ctl.command(), dtype=np.float64)[None, :])
-                ctl.observe(float(r.power[0]), np.asarray(r.pulse_energies[0]))
-                power[e, t + 1] = float(r.power[0])
-    finally:
-        env.close()
-    return {"power": power}
 
 
 def summarize(per_seed: list[dict[str, np.ndarray]]) -> dict[str, Any]:
@@ -165,6 +151,7 @@ def record_traces(model, spec: dict) -> dict[str, Any]:
         mode=spec["mode"],
         split="test",
         max_episode_steps=max(steps, 1),
+        observation_options=observation_options(spec),
         **env_overrides(spec),
     )
     try:
@@ -205,66 +192,66 @@ def evaluate_run(spec: dict, model=None) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------ training
-def _make_train_env(spec: dict):
-    from stable_baselines3.common.monitor import Monitor
-    from stable_baselines3.common.vec_env import DummyVecEnv
+def train_argv(spec: dict, work: Path, resume: bool, remaining: int) -> list[str]:
+    """The ``ros2 run ops_gym_bridge train`` arguments of a training run of the benchmark: the
+    paper's hyper-parameter set, one in-process env, the run's observation set."""
+    argv = [
+        "--algo", spec["algo"],
+        "--stage", str(spec["stage"]),
+        "--mode", spec["mode"],
+        "--split", "train",
+        "--detector", spec["detector"],
+        "--observation", spec.get("observation", "rig"),
+        "--episode-steps", str(int(spec["episode_steps"])),
+        "--seed", str(int(spec["seed"])),
+        "--timesteps", str(int(remaining)),
+        "--hyperparams-set", "paper",
+        "--n-envs", "1",
+        "--obs-history", "0",
+        "--reward", "paper",
+        "--backend", "inprocess",
+        "--torch-threads", "1",
+        "--no-progress",
+        "--out", str(work),
+    ]  # fmt: skip
+    overrides = [
+        *(spec.get("hyperparams") or []),
+        f"checkpoint_freq={spec.get('save_every', 10_000)}",
+    ]
+    argv += ["--hyperparams", *overrides]
+    return [*argv, "--resume"] if resume else argv
 
-    from ops_sim_ros import OpsEnv
 
-    def make():
-        return Monitor(
-            OpsEnv(
-                stage=spec["stage"],
-                mode=spec["mode"],
-                split="train",
-                max_episode_steps=int(spec["episode_steps"]),
-                **env_overrides(spec),
-            ),
-            info_keywords=("power",),
-        )
-
-    return DummyVecEnv([make])
-
-
-def _episode_callback(rows: list, work: Path, spec: dict, state: dict, save):
+def _episode_recorder(rows: list, work: Path, spec: dict):
+    """An SB3 callback: one row per finished training episode (step, return, length, final
+    P_N/P_max) and ``progress.json`` every 1000 steps (the benchmark's time estimate)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    class _Cb(BaseCallback):
+    class _Recorder(BaseCallback):
+        last_progress = 0
+
         def _on_step(self) -> bool:
             n = self.model.num_timesteps
             for info in self.locals.get("infos", []):
                 ep = info.get("episode")
                 if ep is not None:
                     rows.append((n, float(ep["r"]), int(ep["l"]), float(info.get("power", np.nan))))
-            if n - state["last_progress"] >= 1000:
-                state["last_progress"] = n
+            if n - self.last_progress >= 1000:
+                self.last_progress = n
                 write_json(work / "progress.json", {"timesteps": n, "total": spec["timesteps"]})
-            if n - state["last_save"] >= int(spec.get("save_every", 10_000)):
-                state["last_save"] = n
-                save(self.model)
             return True
 
-    return _Cb()
+    return _Recorder()
 
 
-def _save_training(work: Path, model, rows: list, spec: dict, wall_s: float, history: list):
-    tmp = work / "model.tmp.zip"
-    model.save(str(tmp))
-    os.replace(tmp, work / "model.zip")
-    if getattr(model, "replay_buffer", None) is not None:
-        model.save_replay_buffer(str(work / "replay_buffer.tmp.pkl"))
-        os.replace(work / "replay_buffer.tmp.pkl", work / "replay_buffer.pkl")
-    tmp_csv = work / "training.csv.tmp"
-    with open(tmp_csv, "w", newline="") as f:
+def _write_rows(path: Path, rows: list) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["timesteps", "return", "length", "final_power"])
         for n, r, length, p in rows:
             w.writerow([n, f"{r:.5f}", length, f"{p:.5f}"])
-    os.replace(tmp_csv, work / "training.csv")
-    write_json(
-        work / "state.json",
-        {"timesteps": int(model.num_timesteps), "wall_s": round(wall_s, 2), "history": history},
-    )
+    os.replace(tmp, path)
 
 
 def _read_rows(path: Path) -> list:
@@ -277,110 +264,52 @@ def _read_rows(path: Path) -> list:
         ]
 
 
-def _metadata(spec: dict, model, params: dict, wall_s: float, history: list) -> dict:
-    from ops_controller_ros.policy_io import library_versions
-
-    from ops_sim_ros import OpsEnv
-
-    ref = OpsEnv(
-        stage=spec["stage"],
-        mode=spec["mode"],
-        split="train",
-        max_episode_steps=int(spec["episode_steps"]),
-        **env_overrides(spec),
-    )
-    return {
-        "algo": spec["algo"],
-        "stage": spec["stage"],
-        "mode": spec["mode"],
-        "split": "train",
-        "action_type": ref.action_type,
-        "max_step_fs": float(ref.config.max_step_fs),
-        "observation_spec": ref.obs_spec.to_dict(),
-        "observation_shape": list(ref.observation_space.shape),
-        "action_shape": list(ref.action_space.shape),
-        "config": ref.config.to_dict(),
-        "episode_steps": int(spec["episode_steps"]),
-        "normalization": None,
-        "versions": library_versions(),
-        "command_line": ["python", "-m", "ops_gym_bridge.bench_worker", spec["id"]],
-        "timesteps": int(model.num_timesteps),
-        "seed": spec["seed"],
-        "backend": "inprocess",
-        "n_envs": 1,
-        "hyperparams": params,
-        "interrupted": False,
-        "train_wall_s": round(wall_s, 2),
-        "history": history,
-        "benchmark_run": spec["id"],
-    }
-
-
 def train(spec: dict, work: Path):
-    """Train (or resume) in ``work``; returns (model, params, wall_s, history) or raises
-    KeyboardInterrupt after saving."""
-    import torch
-    from ops_controller_ros.policy_io import algo_class
+    """Train (or resume) in ``work`` through ``train``'s own steps (resolve_run, build_env,
+    build_model, learn_and_save: what a user's ``ros2 run ops_gym_bridge train`` does); returns
+    (model, metadata) or raises KeyboardInterrupt after saving."""
+    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
 
-    from . import hyperparams as hp
+    from . import cli_args
+    from . import train as train_cli
 
-    torch.set_num_threads(1)
-    algo = spec["algo"]
-    params = hp.apply_overrides(hp.load(algo), spec.get("hyperparams") or [], algo)
-    if params.get("normalize_obs"):
-        raise ValueError("the benchmark trains without observation normalization")
-    venv = _make_train_env(spec)
-    cls = algo_class(algo)
-    state = read_json(work / "state.json") if (work / "model.zip").exists() else None
-    if state:
-        model = cls.load(str(work / "model.zip"), env=venv, device="cpu")
-        if (
-            getattr(model, "replay_buffer", None) is not None
-            and (work / "replay_buffer.pkl").exists()
-        ):
-            model.load_replay_buffer(str(work / "replay_buffer.pkl"))
-        rows = [r for r in _read_rows(work / "training.csv") if r[0] <= model.num_timesteps]
-        wall0, history = float(state["wall_s"]), list(state["history"])
-        print(f"[run {spec['id']}] resuming at step {model.num_timesteps}", flush=True)
-    else:
-        kwargs = hp.sb3_kwargs(algo, params, int(np.prod(venv.action_space.shape)))
-        model = cls(env=venv, seed=int(spec["seed"]), device="cpu", verbose=0, **kwargs)
-        rows, wall0, history = [], 0.0, []
-    start = int(model.num_timesteps)
-    remaining = int(spec["timesteps"]) - start
-    t0 = time.monotonic()
-    cb_state = {"last_progress": start, "last_save": start}
-
-    def save(m, interrupted=False):
-        wall = wall0 + time.monotonic() - t0
-        hist = [*history, {"from": start, "to": int(m.num_timesteps), "interrupted": interrupted}]
-        _save_training(work, m, rows, spec, wall, hist)
-
-    interrupted = False
-    if remaining > 0:
+    previous = None
+    if (work / "model.zip").exists():
         try:
-            model.learn(
-                total_timesteps=remaining,
-                callback=_episode_callback(rows, work, spec, cb_state, save),
-                reset_num_timesteps=start == 0,
-            )
-        except KeyboardInterrupt:
-            interrupted = True
-        finally:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second signal must not corrupt
-            signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        save(model, interrupted)
+            previous = read_metadata(work)
+        except PolicyLoadError:  # killed before its first save: start again
+            previous = None
+    if previous is None:
+        for name in ("model.zip", "metadata.json", "replay_buffer.pkl", "training.csv"):
+            (work / name).unlink(missing_ok=True)
+        shutil.rmtree(work / "checkpoints", ignore_errors=True)
+    done = int(previous["timesteps"]) if previous else 0
+    remaining = max(int(spec["timesteps"]) - done, 0)
+    rows = [r for r in _read_rows(work / "training.csv") if r[0] <= done]
+    if previous is not None:
+        print(f"[run {spec['id']}] resuming at step {done}", flush=True)
+    if previous is None or remaining > 0:
+        argv = train_argv(spec, work, previous is not None, remaining)
+        args = cli_args.parse_args(train_cli.build_parser(), argv)
+        try:
+            run = train_cli.resolve_run(args, argv)
+            train_cli.build_env(run)
+            train_cli.build_model(run)
+        except train_cli.TrainError as exc:
+            raise RuntimeError(f"train refused the run: {exc}") from None
+        run.extra_callbacks.append(_episode_recorder(rows, work, spec))
+        interrupted, error, _ = train_cli.learn_and_save(run)
+        _write_rows(work / "training.csv", rows)
+        if error is not None:
+            raise error
         if interrupted:
-            print(
-                f"[run {spec['id']}] stopped at step {model.num_timesteps}; saved in {work}",
-                flush=True,
-            )
+            print(f"[run {spec['id']}] stopped; saved in {work}", flush=True)
             raise KeyboardInterrupt
-        signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
-    state = read_json(work / "state.json") or {"wall_s": 0.0, "history": []}
-    venv.close()
-    return model, params, float(state["wall_s"]), state["history"]
+    from ops_controller_ros.policy_io import load_policy
+
+    policy = load_policy(work)
+    return policy.model, policy.metadata
 
 
 # ------------------------------------------------------------------------------ one run
@@ -395,12 +324,13 @@ def execute(spec: dict, out: Path) -> dict:
     t0 = time.monotonic()
     record: dict[str, Any] = {"spec": spec}
     if spec["kind"] == "train":
-        model, params, wall, history = train(spec, work)
+        model, metadata = train(spec, work)
+        wall = sum(float(h.get("wall_s", 0.0)) for h in metadata.get("history", []))
         record["train_wall_s"] = round(wall, 1)
         record["timesteps"] = int(model.num_timesteps)
         from ops_controller_ros.policy_io import save_metadata
 
-        save_metadata(work, _metadata(spec, model, params, wall, history))
+        save_metadata(work, {**metadata, "benchmark_run": spec["id"]})
         evaluation = evaluate_run(spec, model)
     else:
         evaluation = evaluate_run(spec, None)
@@ -410,6 +340,8 @@ def execute(spec: dict, out: Path) -> dict:
     record["wall_s"] = round(time.monotonic() - t0, 1)
     for name in ("replay_buffer.pkl", "state.json", "progress.json", "worker.pid"):
         (work / name).unlink(missing_ok=True)
+    for name in ("checkpoints", "logs"):  # train's checkpoints and logs: not results
+        shutil.rmtree(work / name, ignore_errors=True)
     write_json(work / "run.json", record)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     if final.exists():  # a leftover without run.json (never complete): replace it

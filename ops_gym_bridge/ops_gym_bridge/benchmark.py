@@ -35,6 +35,7 @@ from typing import Any
 
 from ops_controller_ros.controllers import CONTROLLERS
 from ops_sim_ros.config import DETECTORS, MODES
+from ops_sim_ros.observation import OBSERVATION_SETS
 
 from . import cli_args
 from .bench_worker import EXIT_INTERRUPTED, read_json, write_json
@@ -113,6 +114,7 @@ def plan(args) -> list[dict[str, Any]]:
         evaluation["episodes"] = int(args.eval_episodes)
     common = {
         "detector": args.detector,
+        "observation": args.observation,
         "episode_steps": prof["episode_steps"],
         "eval": evaluation,
         "save_every": args.save_every,
@@ -491,6 +493,13 @@ def build_parser():
         several=("mode",),
         include=("mode", "detector"),
     )
+    p.add_argument(
+        "--observation",
+        choices=OBSERVATION_SETS,
+        default="rig",
+        help="observation set of the trained agents: rig (what a real stacker measures) or "
+        "authors (the authors' CPS_env, with the actual delay-line lengths: the paper's Table 1)",
+    )
     p.add_argument("--stage", type=int, help="stages N of Table 1 (default: the profile's)")
     p.add_argument("--algos", nargs="+", choices=ALGOS, help="(default: the profile's)")
     p.add_argument("--seeds", type=int, nargs="+", help="training seeds (default: the profile's)")
@@ -543,10 +552,18 @@ def run(argv: list[str] | None = None) -> int:
     settings = {
         "profile": args.profile,
         "detector": args.detector,
+        "observation": args.observation,
         "profile_settings": PROFILES[args.profile],
         "command_line": ["ros2", "run", "ops_gym_bridge", "benchmark", *(argv or sys.argv[1:])],
     }
     previous = read_json(out / "benchmark.json")
+    if previous and previous.get("observation", "rig") != args.observation:
+        print(
+            f"[benchmark] error: {out} holds runs with --observation "
+            f"{previous.get('observation', 'rig')}",
+            file=sys.stderr,
+        )
+        return 2
     if previous and previous.get("detector") != args.detector:
         print(
             f"[benchmark] error: {out} holds runs with --detector {previous['detector']}",

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 from ops_sim_ros.config import SPLITS, make_config
+from ops_sim_ros.observation import OBSERVATION_SETS
 
 from . import cli_args, continuous
 from .envs import EPISODE_STEPS
@@ -108,6 +109,12 @@ def build_parser():
         help="overrides of the simulated environment (OpsConfig fields, e.g. detector_noise=0.01 "
         "pulse_fwhm_fs=1200) that the controller is not told of",
     )
+    p.add_argument(
+        "--observation",
+        choices=OBSERVATION_SETS,
+        help="observation set to run the model on: a model runs only on the set it was trained "
+        "on (rig or authors; default: the model's, from its metadata)",
+    )
     p.add_argument("--no-plot", action="store_true", help="do not write curve.png")
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (0: default)")
     p.add_argument("--quiet", action="store_true", help="print only the summary table")
@@ -174,6 +181,11 @@ def resolve_subject(args) -> Subject:
         if key in env_overrides:
             raise EvaluationError(f"--env {key}=...: use --{key.replace('_', '-')} instead")
     if args.controller:
+        if args.observation is not None:
+            raise EvaluationError(
+                "--observation chooses a model's observation set; a controller reads the "
+                "detector only"
+            )
         params = _parse(args.controller_param, "--controller-param")
         subject = Subject(
             name=args.controller,
@@ -188,6 +200,13 @@ def resolve_subject(args) -> Subject:
         _check_controller(subject)
         return subject
     loaded, stage = load_for_evaluation(args.model, args.stage)
+    if args.observation is not None:
+        from ops_controller_ros.policy_io import PolicyLoadError, check_observation
+
+        try:
+            check_observation(loaded.metadata, args.observation)
+        except PolicyLoadError as exc:
+            raise EvaluationError(str(exc)) from None
     trained_detector = (loaded.metadata.get("config") or {}).get("detector", "polarizer")
     return Subject(
         name=loaded.algo,

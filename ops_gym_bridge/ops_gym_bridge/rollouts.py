@@ -5,6 +5,10 @@
   reading (P_N / P_max and the detected slot energies) per command. Used by ``evaluate
   --controller``, ``evaluate --record`` and ``scripts/spgd_baseline.py``.
 * :func:`rollout_policy` runs a learned policy's batched ``predict`` on a vector env.
+* :func:`policy_episodes` runs a batched ``predict`` on the very episodes of
+  :func:`controller_episodes` (one env per episode, reset with :func:`episode_seed`: the same
+  initial delay errors and the same noise draws), so agents and controllers compare like with
+  like (the benchmark).
 
 The controller is built from a *nominal* configuration; the simulator may run another one
 (``evaluate --env KEY=VALUE``): the controller is not told.
@@ -102,3 +106,43 @@ def rollout_policy(
         return {"power": power, "returns": returns}
     finally:
         env.close()
+
+
+def policy_episodes(
+    predict,
+    sim_config,
+    episodes: int,
+    steps: int,
+    seed: int,
+    observation_options: dict[str, Any] | None = None,
+) -> dict[str, np.ndarray]:
+    """``episodes`` episodes of a batched deterministic ``predict(obs) -> actions`` on the
+    episodes :func:`controller_episodes` runs for the same ``seed``: episode ``e`` is an
+    :class:`~ops_sim_ros.env.OpsEnv` reset with ``episode_seed(seed, e)``, and every step draws
+    the simulator's noise exactly as a controller's step does. ``observation_options``: the
+    model's observation choices (``ObservationSpec.options()``)."""
+    from ops_sim_ros.env import OpsEnv
+
+    envs = [
+        OpsEnv.from_config(
+            sim_config, max_episode_steps=steps, observation_options=observation_options
+        )
+        for _ in range(episodes)
+    ]
+    try:
+        power = np.empty((episodes, steps + 1))
+        returns = np.zeros(episodes)
+        first = [env.reset(seed=episode_seed(seed, e)) for e, env in enumerate(envs)]
+        obs = np.stack([o for o, _ in first])
+        power[:, 0] = [info["power"] for _, info in first]
+        for t in range(steps):
+            actions = np.asarray(predict(obs), dtype=np.float32).reshape(episodes, -1)
+            for e, env in enumerate(envs):
+                o, reward, _, _, info = env.step(actions[e])
+                obs[e] = o
+                power[e, t + 1] = info["power"]
+                returns[e] += reward
+        return {"power": power, "returns": returns}
+    finally:
+        for env in envs:
+            env.close()

@@ -8,6 +8,8 @@ mode (``--backend ros``). Defaults are the paper's selected hyper-parameters
 environment step, and chooses the algorithm, ``--n-envs`` and ``--obs-history`` unless given.
 ``--obs-history K`` gives the policy memory: each observation holds the last K observations and
 the actions that led to them (``ops_sim_ros.observation``; saved in the metadata).
+``--observation authors`` trains on the authors' observation set (their ``CPS_env`` default, with
+the actual delay-line lengths, a simulator-only oracle) instead of the rig's (the default).
 
 Output directory (``--out DIR``)::
 
@@ -30,12 +32,13 @@ import datetime as _dt
 import signal
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from ops_sim_ros.config import make_config
+from ops_sim_ros.observation import OBSERVATION_SETS
 
 from . import cli_args
 from . import hyperparams as hp
@@ -54,6 +57,7 @@ RUN_KEYS = (
     "episode_steps",
     "n_envs",
     "obs_history",
+    "observation",
     "reward",
     "hyperparams_set",
 )
@@ -104,6 +108,14 @@ def _add_algorithm_arguments(p) -> None:
         help="what the learner is paid: paper (eq. 3, -(1 - P)^2) or nines (-log10(1 - P) / 3, "
         "steep near the optimum; ops_gym_bridge.rewards). Evaluations always measure P_N/P_max "
         "(default: the set's; paper for paper)",
+    )
+    p.add_argument(
+        "--observation",
+        choices=OBSERVATION_SETS,
+        default=None,
+        help="observation set: rig (what a real stacker measures) or authors (the authors' "
+        "CPS_env: power, trace and the actual delay-line lengths, a simulator-only oracle); "
+        "saved in the model's metadata (default: rig; --resume: the model's)",
     )
     cli_args.add_key_value_argument(
         p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
@@ -187,6 +199,11 @@ def _sigterm_to_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+def observation_options(args) -> dict[str, Any]:
+    """The run's observation choices (memory, observation set) for every env it builds."""
+    return {"history": args.obs_history, "observation": args.observation}
+
+
 def _latest_checkpoint(out: Path) -> Path | None:
     ckpts = sorted(
         (out / "checkpoints").glob("model_*_steps.zip"),
@@ -228,7 +245,7 @@ def build_metadata(
         split=args.split,
         detector=args.detector,
         max_episode_steps=args.episode_steps,
-        observation_options={"history": args.obs_history},
+        observation_options=observation_options(args),
     )
     history = list((previous or {}).get("history", []))
     history.append(
@@ -262,6 +279,7 @@ def build_metadata(
         "backend": args.backend,
         "n_envs": args.n_envs,
         "obs_history": args.obs_history,
+        "observation": args.observation,
         "reward": args.reward,
         "hyperparams_set": args.hyperparams_set,
         "hyperparams": params,
@@ -321,7 +339,7 @@ def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
             args.eval_episodes,
             args.episode_steps,
             seed=0,
-            observation_options={"history": args.obs_history},
+            observation_options=observation_options(args),
         )
         power = float(res["power"][:, -1].mean())
         print(
@@ -364,6 +382,8 @@ class TrainRun:
     model: Any = None
     start_steps: int = 0
     wall_limit_reached: bool = False
+    #: More SB3 callbacks for ``learn`` (e.g. the benchmark's per-episode record).
+    extra_callbacks: list = field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------------- steps
@@ -411,6 +431,8 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         args.hyperparams_set = "paper"
     if args.obs_history is None:  # ... or before observation memory
         args.obs_history = int(previous["observation_spec"].get("history", 0))
+    if args.observation is None:  # ... or before observation sets
+        args.observation = str(previous["observation_spec"].get("observation", "rig"))
     if args.reward is None:  # ... or before training rewards
         args.reward = "paper"
     _fill_set_defaults(args)
@@ -430,6 +452,8 @@ def _fill_set_defaults(args) -> None:
     for key, value in defaults.items():
         if getattr(args, key) is None:
             setattr(args, key, value)
+    if args.observation is None:
+        args.observation = "rig"
     if args.obs_history < 0:
         raise TrainError("--obs-history must be >= 0")
     if args.n_envs < 1:
@@ -460,7 +484,7 @@ def build_env(run: TrainRun) -> None:
             timeout_s=args.ros_timeout,
             episode_steps=args.episode_steps,
             overrides={"detector": args.detector},
-            observation_options={"history": args.obs_history},
+            observation_options=observation_options(args),
         )
     except ValueError as exc:
         raise TrainError(str(exc)) from None
@@ -527,6 +551,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     t0_ref = [time.monotonic()]
     best = _best_model_hooks(run, t0_ref) if args.eval_freq > 0 else None
     callbacks = training_callbacks(total, not args.no_progress, every, out, normalize, max_s, best)
+    callbacks.callbacks.extend(run.extra_callbacks)
     # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
     meta = build_metadata(
         args, run.params, model, run.venv, run.command_line, 0.0, False, run.previous
@@ -539,7 +564,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     print(
         f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
         f"detector={args.detector} backend={args.backend} n_envs={args.n_envs} "
-        f"obs_history={args.obs_history} reward={args.reward} "
+        f"obs_history={args.obs_history} observation={args.observation} reward={args.reward} "
         f"hyperparams_set={args.hyperparams_set} "
         f"steps {run.start_steps} -> {total}, out={out}",
         flush=True,

@@ -181,7 +181,7 @@ def test_signal_stops_every_run_saves_and_resumes(tmp_path, sig):
     steps = []
     for w in works:
         assert (w / "model.zip").exists() and (w / "replay_buffer.pkl").exists()
-        state = json.loads((w / "state.json").read_text())
+        state = json.loads((w / "metadata.json").read_text())  # train's own save
         assert state["timesteps"] >= 1000
         steps.append(state["timesteps"])
     assert not stored(out)

@@ -257,3 +257,27 @@ def test_inprocess_n_envs_uses_the_batched_vector_env():
         _, _, dones, infos = venv.step(np.zeros((4, 3), np.float32))
     assert dones.all() and all("episode" in i and "power" in i["episode"] for i in infos)
     venv.close()
+
+
+def test_authors_observation_is_saved_and_refused_on_the_rig_set(tmp_path):
+    """train --observation authors: the set is in the metadata, the model sees the applied delays,
+    and evaluate refuses to run it on the rig's observation with a message that says why."""
+    out = tmp_path / "td3_authors"
+    done = run(
+        "train", "--algo", "td3", "--stage", 2, "--mode", "easy", "--timesteps", 300,
+        "--observation", "authors", "--out", out, "--no-progress",
+        "--hyperparams", "learning_starts=100", "net_arch=[16,16]", "batch_size=32",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    meta = read_metadata(out)
+    assert meta["observation"] == "authors"
+    assert meta["observation_spec"]["observation"] == "authors"
+    refused = run("evaluate", out, "--observation", "rig", "--episodes", 1, "--steps", 5,
+                  "--seeds", 0, "--out", tmp_path / "ev_rig")  # fmt: skip
+    assert refused.returncode == 2
+    assert "trained on the 'authors' observation set" in refused.stderr
+    assert "--observation authors" in refused.stderr
+    assert not (tmp_path / "ev_rig" / "evaluation.json").exists()
+    ok = run("evaluate", out, "--episodes", 1, "--steps", 5, "--seeds", 0,
+             "--out", tmp_path / "ev")  # fmt: skip
+    assert ok.returncode == 0, ok.stdout + ok.stderr
