@@ -12,11 +12,14 @@ from its set-points. A lockstep simulator whose first trace was missed is asked 
 present set-points.
 
 Subclasses declare their own parameters and build the controller (:meth:`build_controller`).
+Only ``rate_hz`` and ``timeout_s`` change live; every other parameter is fixed after start (a
+change is refused with the reason).
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 from ops_sim_ros.node_params import ParamSpec, declare_all
@@ -28,9 +31,13 @@ from ops_sim_ros.ros_interface import (
     TOPIC_DELAYS,
     TOPIC_INTENSITY,
     TOPIC_POWER,
+    MessageGuard,
+    delays_from_msg,
     float_array_msg,
+    power_from_msg,
     trace_from_msg,
 )
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
@@ -39,12 +46,19 @@ from .command_tracker import CommandTracker
 
 LOOP_PARAMS = [
     ParamSpec(
-        "rate_hz", 0.0, "largest command rate; 0: as fast as readings arrive", low=0.0, high=1e6
+        "rate_hz",
+        0.0,
+        "largest command rate; 0: as fast as readings arrive",
+        low=0.1,
+        high=10000.0,
+        special=(0.0,),
     ),
     controller_params.TIMEOUT,
     ParamSpec("seed", -1, "random seed of the controller; -1 draws one", low=-1, high=2**31 - 1),
     controller_params.LOG_PERIOD,
 ]
+#: The parameters a running loop applies at once; the others are fixed after start.
+LIVE_PARAMS = ("rate_hz", "timeout_s")
 
 
 class ControllerLoopNode(Node):
@@ -52,7 +66,11 @@ class ControllerLoopNode(Node):
 
     def __init__(self, node_name: str, params: list[ParamSpec]):
         super().__init__(node_name)
-        v = declare_all(self, [*params, *LOOP_PARAMS])
+        specs = [
+            p if p.name in LIVE_PARAMS else replace(p, read_only=True)
+            for p in [*params, *LOOP_PARAMS]
+        ]
+        v = declare_all(self, specs, on_change=self._on_set_parameters)
         self.values = v
         self.seed = None if v["seed"] < 0 else v["seed"]
         self._min_period = 1.0 / v["rate_hz"] if v["rate_hz"] > 0 else 0.0
@@ -60,6 +78,7 @@ class ControllerLoopNode(Node):
         self.ctrl = None
         self.readings = 0
         self._commands = CommandTracker(v["timeout_s"])
+        self._guard = MessageGuard(self)
         self._trace = None  # (flat trace, samples per slot) of the latest ops/intensity
         self._delays = None  # the latest ops/delays
         self._next_allowed = 0.0
@@ -77,6 +96,16 @@ class ControllerLoopNode(Node):
         self.get_logger().info(
             f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)}"
         )
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Apply a validated change of rate_hz or timeout_s (declare_all refused the rest)."""
+        for p in params:
+            if p.name == "rate_hz":
+                self._min_period = 1.0 / p.value if p.value > 0 else 0.0
+                self._next_allowed = min(self._next_allowed, time.monotonic() + self._min_period)
+            elif p.name == "timeout_s":
+                self._commands.timeout_s = float(p.value)
+        return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ subclass hooks
     def build_controller(self, delays: np.ndarray, samples_per_slot: int):
@@ -105,30 +134,46 @@ class ControllerLoopNode(Node):
         self.get_logger().info(f"simulator found: {stage} stages; closing the loop")
         self._send()
 
+    def _start_if_found(self) -> bool:
+        """(Re)start when set-points and trace agree on a stage other than the controller's
+        (the trace tells the samples per slot); True when the controller runs that stage."""
+        if self._delays is None or self._trace is None:
+            return False
+        stage = self._delays.size
+        if self._trace[0].size != (2**stage - 1) * self._trace[1]:
+            return False  # one of them is from another stage: wait for both
+        if self.ctrl is None or self.ctrl.stage != stage:
+            self._start()
+            return False
+        return True
+
     def _on_delays(self, msg: Float32MultiArray):
-        delays = np.asarray(msg.data, dtype=np.float64)
-        if delays.size == 0 or not np.all(np.isfinite(delays)):
+        delays = self._guard.take(TOPIC_DELAYS, delays_from_msg, msg)
+        if delays is None:
             return
         self._delays = delays
         if self.ctrl is None or self.ctrl.stage != delays.size:
-            if self._trace is not None:  # the trace tells the samples per slot
-                self._start()
+            self._start_if_found()
             return
         self._commands.on_setpoints(delays)
 
     def _on_intensity(self, msg: Float32MultiArray):
-        self._trace = trace_from_msg(msg)
-        if self.ctrl is None and self._delays is not None:
-            self._start()
+        trace = self._guard.take(TOPIC_INTENSITY, trace_from_msg, msg)
+        if trace is None:
+            return
+        self._trace = trace
+        if self.ctrl is None or self.ctrl.stage != self._delays.size:
+            self._start_if_found()
 
     def _on_power(self, msg: Float32):
-        if self.ctrl is None or not self._commands.matched or not np.isfinite(msg.data):
+        power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
+        if power is None or self.ctrl is None or not self._commands.matched:
             return
         trace, samples = self._trace
         energies = pulse_energies_from_trace(trace, samples)
         if energies.size != 2**self.ctrl.stage - 1:
             return  # a trace of another stage (the simulator is restarting)
-        self.ctrl.observe(float(msg.data), energies)
+        self.ctrl.observe(power, energies)
         self._commands.answered()
         self.readings += 1
         now = time.monotonic()

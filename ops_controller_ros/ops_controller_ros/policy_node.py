@@ -27,9 +27,12 @@ from ops_sim_ros.ros_interface import (
     TOPIC_DELAYS,
     TOPIC_INTENSITY,
     TOPIC_POWER,
+    MessageGuard,
     NodeFatalError,
     ParameterError,
+    delays_from_msg,
     float_array_msg,
+    power_from_msg,
     run_node,
     trace_from_msg,
 )
@@ -65,6 +68,7 @@ class PolicyNode(Node):
         self._max_step_fs = self._policy.max_step_fs  # policy_io loads increment models only
 
         self._tracker = CommandTracker(v["timeout_s"])
+        self._guard = MessageGuard(self)
         self._delays: np.ndarray | None = None
         self._trace: tuple[np.ndarray, int] | None = None
         self._steps = 0
@@ -83,8 +87,13 @@ class PolicyNode(Node):
         )
 
     def _on_delays(self, msg: Float32MultiArray):
-        delays = np.asarray(msg.data, dtype=np.float64)
-        if delays.size == 0 or not np.all(np.isfinite(delays)):
+        delays = self._guard.take(TOPIC_DELAYS, delays_from_msg, msg)
+        if delays is None:
+            return
+        if self._delays is not None and delays.size != self._delays.size:
+            self._guard.drop(
+                TOPIC_DELAYS, f"{delays.size} delays from a simulator of {self._delays.size} stages"
+            )
             return
         if self._delays is None:
             try:
@@ -97,22 +106,28 @@ class PolicyNode(Node):
         self._tracker.on_setpoints(delays, accept_without_command=True)
 
     def _on_trace(self, msg: Float32MultiArray):
-        if self._tracker.matched:
-            self._trace = trace_from_msg(msg)
+        trace = self._guard.take(TOPIC_INTENSITY, trace_from_msg, msg)
+        if trace is None or not self._tracker.matched:
+            return
+        slots = trace[0].size // trace[1]
+        if slots != self._spec.num_slots:
+            # The stage was checked on ops/delays: a trace of another size is not this rig's.
+            self._guard.drop(
+                TOPIC_INTENSITY,
+                f"a trace of {slots} pulse slots; the model expects {self._spec.num_slots}",
+            )
+            return
+        self._trace = trace
 
     def _on_power(self, msg: Float32):
-        if not self._tracker.matched or self._trace is None or not np.isfinite(msg.data):
+        power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
+        if power is None or not self._tracker.matched or self._trace is None:
             return
         trace, samples = self._trace
         energies = pulse_energies_from_trace(trace, samples)
-        if energies.shape[-1] != self._spec.num_slots:
-            raise NodeFatalError(
-                f"the simulator's trace has {energies.shape[-1]} pulse slots, the model expects "
-                f"{self._spec.num_slots}"
-            )
-        action = self._runner.act(energies, float(msg.data), self._delays).astype(np.float64)
+        action = self._runner.act(energies, power, self._delays).astype(np.float64)
         command = self._delays + action * self._max_step_fs
-        self._last_power = float(msg.data)
+        self._last_power = power
         self._steps += 1
         self._trace = None
         self._send(command)
