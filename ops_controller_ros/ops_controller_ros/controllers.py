@@ -19,6 +19,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from .spgd import PAPER as SPGD_PAPER
+
 
 class Controller(Protocol):
     stage: int
@@ -44,6 +46,9 @@ def _make_tracker(model, params: dict[str, Any], setpoints_fs, seed):
 
 _FACTORIES = {"spgd": _make_spgd, "tracker": _make_tracker}
 CONTROLLERS = tuple(_FACTORIES)
+#: The parameters under which the benchmark runs each controller: the paper's SPGD-PID (no
+#: normalization, no restarts: the baseline of Table 1, which stalls in medium and hard modes).
+BENCHMARK_PARAMS: dict[str, dict[str, Any]] = {"spgd": dict(SPGD_PAPER)}
 
 
 def make_controller(

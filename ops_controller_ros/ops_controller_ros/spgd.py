@@ -8,7 +8,25 @@ The classic controller of coherent beam combining (the paper's introduction). On
 3. the error e_k = gain * g (fs) drives a PID stage, Δ = kp e_k + ki Σe + kd (e_k - e_{k-1}),
    optionally smoothed by momentum (v = m v + Δ), clipped to ``max_update_fs``; u += v.
 
-The class is a two-phase state machine with no notion of time or transport: ``command()`` gives
+Two departures from the paper's SPGD-PID, both on by default and both measured (docs/results.md,
+"SPGD-PID: the user's first run"); :data:`PAPER` switches both off (the benchmark's baseline):
+
+Normalized gradient (``normalized``): the estimate is divided by the measured power (the gradient
+of log P). Far from the peak the landscape is flat and a fixed gain crawls for hundreds of
+readings; with the normalization a step has the same size at any power, and at the peak
+(P ~ 1) nothing changes.
+
+Restarts (``recovery="restart"``; ``"none"`` never restarts): SPGD is a
+local method, and from the initial errors of medium and hard modes it often climbs a side peak of
+the periodic landscape (P_N/P_max ~ 0.33 at N = 3, every stage half a cycle off) and stays there; no
+single-stage move leads off such a peak. When P_N/P_max is still below ``restart_below`` after
+``restart_after`` iterations (since the start or the last restart), the controller walks every
+set-point to a random offset within +- ``restart_range_fs`` / 2 (one optical cycle wide: every
+delay's landscape repeats with the optical period), in steps of ``restart_step_fs`` (below the
+actuator's largest step; readings on the way are not used), and SPGD starts again there. The best
+plateau seen is remembered: a restart leaves from it.
+
+The class is a state machine with no notion of time or transport: ``command()`` gives
 the set-points to apply next, ``observe(power)`` the reading they produced. The ROS node and the
 in-process evaluation both drive it the same way.
 """
@@ -18,6 +36,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+#: ``SpgdParams.recovery``: "restart" leaves a side peak by random restarts; "none": the paper's.
+RECOVERIES = ("restart", "none")
 
 
 @dataclass(frozen=True)
@@ -30,6 +51,13 @@ class SpgdParams:
     momentum: float = 0.0  # 0 <= m < 1
     max_update_fs: float = 0.5  # largest set-point change per iteration
     integral_limit_fs: float = 5.0  # anti-windup bound of the integral term
+    normalized: bool = True  # divide the gradient by the power (False: the paper's)
+    normalize_floor: float = 0.02  # ... by at least this power
+    recovery: str = "restart"  # "restart": leave a side peak; "none": the paper's SPGD-PID
+    restart_below: float = 0.9  # restart when P_N/P_max is still below this ...
+    restart_after: int = 30  # ... this many iterations after the start or the last restart
+    restart_range_fs: float = 3.6  # width of a restart's random offset (a 1030 nm cycle: 3.44 fs)
+    restart_step_fs: float = 0.06  # set-point change per reading on the way to it
 
     def __post_init__(self):
         checks = (
@@ -38,16 +66,26 @@ class SpgdParams:
             ("momentum", 0.0 <= self.momentum < 1.0, "in [0, 1)"),
             ("max_update_fs", self.max_update_fs > 0, "> 0"),
             ("integral_limit_fs", self.integral_limit_fs >= 0, ">= 0"),
+            ("normalize_floor", 0.0 < self.normalize_floor <= 1.0, "in (0, 1]"),
+            ("recovery", self.recovery in RECOVERIES, f"one of {', '.join(RECOVERIES)}"),
+            ("restart_below", 0.0 <= self.restart_below <= 1.0, "in [0, 1]"),
+            ("restart_after", self.restart_after >= 1, ">= 1"),
+            ("restart_range_fs", self.restart_range_fs >= 0, ">= 0"),
+            ("restart_step_fs", self.restart_step_fs > 0, "> 0"),
         )
         for name, ok, allowed in checks:
             if not ok:
                 raise ValueError(f"{name} must be {allowed} (got {getattr(self, name)!r})")
-        for name in ("kp", "ki", "kd"):
+        for name in ("kp", "ki", "kd", "restart_range_fs", "restart_step_fs"):
             if not np.isfinite(getattr(self, name)):
                 raise ValueError(f"{name} must be finite (got {getattr(self, name)!r})")
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+#: The paper's SPGD-PID: no normalization, no restarts (Table 1's baseline; stalls in medium/hard).
+PAPER = {"normalized": False, "recovery": "none"}
 
 
 class SpgdPid:
@@ -70,10 +108,39 @@ class SpgdPid:
         self._phase = 0  # 0: waiting for J+, 1: waiting for J-
         self._j_plus = 0.0
         self.iterations = 0
+        self.restarts = 0
         self.last_power = float("nan")
+        self._walk = []  # set-points still to visit on the way to a restart point
+        self._since_restart = 0
+        self._best = (-np.inf, u.copy())  # (plateau power, its set-points)
+
+    # ------------------------------------------------------------------ restarts
+    @property
+    def restarting(self) -> bool:
+        """True while walking to a restart point (the readings are not used)."""
+        return bool(self._walk)
+
+    def _restart(self) -> None:
+        p = self.params
+        if self.last_power > self._best[0]:
+            self._best = (self.last_power, self.setpoints_fs.copy())
+        start = self._best[1]
+        target = start + self._rng.uniform(-0.5, 0.5, self.stage) * p.restart_range_fs
+        n = max(int(np.ceil(np.max(np.abs(target - self.setpoints_fs)) / p.restart_step_fs)), 1)
+        here = self.setpoints_fs
+        self._walk = [here + (target - here) * k / n for k in range(1, n + 1)]
+        self.setpoints_fs = target
+        self._velocity = np.zeros(self.stage)
+        self._integral = np.zeros(self.stage)
+        self._last_error = np.zeros(self.stage)
+        self._phase = 0
+        self._since_restart = 0
+        self.restarts += 1
 
     def command(self) -> np.ndarray:
-        """Set-points (fs) to apply now: u + a s, then u - a s."""
+        """Set-points (fs) to apply now: the scan's next point, else u + a s, then u - a s."""
+        if self._walk:
+            return self._walk[0]
         sign = 1.0 if self._phase == 0 else -1.0
         return self.setpoints_fs + sign * self.params.perturbation_fs * self._signs
 
@@ -82,14 +149,21 @@ class SpgdPid:
 
         SPGD uses the power only; ``pulse_energies`` is accepted for the common interface of
         :mod:`ops_controller_ros.controllers`."""
+        if self._walk:
+            self._walk.pop(0)
+            return
         if self._phase == 0:
             self._j_plus = float(power)
             self._phase = 1
+            if self.iterations == 0:  # no J+/J- pair yet: the reading itself
+                self.last_power = self._j_plus
             return
         p = self.params
         j_minus = float(power)
         self.last_power = 0.5 * (self._j_plus + j_minus)
         gradient = (self._j_plus - j_minus) / (2.0 * p.perturbation_fs) * self._signs
+        if p.normalized:  # the gradient of log P: the same step size at any power
+            gradient = gradient / max(self.last_power, p.normalize_floor)
         error = p.gain * gradient
         self._integral = np.clip(self._integral + error, -p.integral_limit_fs, p.integral_limit_fs)
         update = p.kp * error + p.ki * self._integral + p.kd * (error - self._last_error)
@@ -100,3 +174,10 @@ class SpgdPid:
         self._signs = self._rng.choice((-1.0, 1.0), size=self.stage)
         self._phase = 0
         self.iterations += 1
+        self._since_restart += 1
+        if (
+            p.recovery == "restart"
+            and self._since_restart >= p.restart_after
+            and self.last_power < p.restart_below
+        ):
+            self._restart()  # stalled on a side peak: look elsewhere

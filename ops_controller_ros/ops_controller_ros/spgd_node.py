@@ -11,7 +11,7 @@ from ops_sim_ros.node_params import ParamSpec
 from ops_sim_ros.ros_interface import ParameterError, run_node
 
 from .loop_node import ControllerLoopNode
-from .spgd import SpgdParams, SpgdPid
+from .spgd import RECOVERIES, SpgdParams, SpgdPid
 
 _DEFAULTS = SpgdParams()
 # The node's parameters of the algorithm: SpgdParams' own fields (their defaults and types),
@@ -24,9 +24,30 @@ _SPGD_FIELDS = {
     "kd": ("PID derivative gain", -1e6, 1e6, False),
     "momentum": ("momentum of the update, in [0, 1)", 0.0, 0.999, False),
     "max_update_fs": ("largest set-point change per iteration", 0.0, 1e3, True),
+    "normalized": ("divide the gradient by the power (false: the paper's SPGD)", None, None, False),
+    "normalize_floor": ("smallest power the gradient is divided by", 0.0, 1.0, True),
+    "recovery": (
+        "restart: leave a side peak by random restarts; none: the paper's",
+        None,
+        None,
+        False,
+    ),
+    "restart_below": ("restart while P_N/P_max is below this ...", 0.0, 1.0, False),
+    "restart_after": ("... this many iterations after the last (re)start", 1, 100000, False),
+    "restart_range_fs": ("width of a restart's random offset, fs (one cycle)", 0.0, 1e3, False),
+    "restart_step_fs": ("set-point change per reading on the way to a restart", 0.0, 1e3, True),
 }
+_CHOICES = {"recovery": RECOVERIES}
 PARAMS = [
-    ParamSpec(name, getattr(_DEFAULTS, name), desc, low=lo, high=hi, low_exclusive=excl)
+    ParamSpec(
+        name,
+        getattr(_DEFAULTS, name),
+        desc,
+        low=lo,
+        high=hi,
+        low_exclusive=excl,
+        choices=_CHOICES.get(name, ()),
+    )
     for name, (desc, lo, hi, excl) in _SPGD_FIELDS.items()
 ]
 
@@ -43,7 +64,8 @@ class SpgdNode(ControllerLoopNode):
         return SpgdPid(delays.size, self._params, setpoints_fs=delays, seed=self.seed)
 
     def progress(self) -> str:
-        return f"iteration {self.ctrl.iterations}"
+        restarts = f", {self.ctrl.restarts} restarts" if self.ctrl.restarts else ""
+        return f"iteration {self.ctrl.iterations}{restarts}"
 
 
 def main(args=None):

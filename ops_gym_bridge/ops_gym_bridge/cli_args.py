@@ -36,6 +36,31 @@ _HELP = {
 FROM_MODEL = None
 
 
+def int_in(low: int, high: int | None = None, what: str = "value"):
+    """An argparse ``type``: an integer in [low, high] (no upper bound when high is None), so a
+    value out of range is refused at parse time with the allowed range (``--stage 0`` was once
+    read as "not given")."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what} must be an integer (got {text!r})") from None
+        if value < low or (high is not None and value > high):
+            allowed = f"from {low} to {high}" if high is not None else f">= {low}"
+            raise argparse.ArgumentTypeError(f"{what} must be {allowed} (got {value})")
+        return value
+
+    parse.__name__ = what  # argparse names the type in its messages
+    return parse
+
+
+#: ``--stage``: the number of stacking stages, 1 to MAX_STAGE.
+stage_type = int_in(1, MAX_STAGE, "stage")
+#: A count that must be at least one (episodes, steps, timesteps, ...).
+positive_int = int_in(1, None, "count")
+
+
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Appends ``(default: X)`` once: not where the help already names its default, nor for
     options whose default is None / False (flags, "the model's")."""
@@ -76,7 +101,7 @@ def add_env_arguments(
         default = defaults[name]
         kwargs: dict[str, Any] = {"help": _HELP[name]}
         if name == "stage":
-            kwargs["type"] = int
+            kwargs["type"] = stage_type
         else:
             kwargs["choices"] = _CHOICES[name]
         flag = f"--{name}"
