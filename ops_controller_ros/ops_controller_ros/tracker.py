@@ -54,6 +54,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .calibration import ModelCalibration
+
 
 @dataclass(frozen=True)
 class TrackerParams:
@@ -73,6 +75,10 @@ class TrackerParams:
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
     acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
     step_budget_ms: float = 0.0  # global search per reading (0: all in the reading that starts it)
+    calibrate: bool = True  # estimate the detector's gain and offset online
+    calibrate_optics: bool = False  # estimate wavelength and pulse width too (experimental)
+    calibration_every: int = 25  # tracking readings between updates of wavelength and pulse width
+    calibration_memory: float = 500.0  # readings over which the calibration statistics are kept
 
     def __post_init__(self):
         checks = (
@@ -90,6 +96,8 @@ class TrackerParams:
             ("misses", self.misses >= 1, ">= 1"),
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
             ("step_budget_ms", self.step_budget_ms >= 0, ">= 0"),
+            ("calibration_every", self.calibration_every >= 1, ">= 1"),
+            ("calibration_memory", self.calibration_memory >= 1, ">= 1"),
         )
         for name, ok, allowed in checks:
             if not ok:
@@ -116,6 +124,7 @@ class PhaseTracker:
         self.model = model
         self.stage = int(model.stage)
         self.params = params or TrackerParams()
+        self.calibration = ModelCalibration(model, self.params.calibration_memory)
         self.stacker = stacker_from_config(model)
         self.period_fs = model.optical_period_fs
         self.range_cycles = model.actuator_range_cycles
@@ -199,12 +208,15 @@ class PhaseTracker:
             self._search_step()
 
     # ------------------------------------------------------------------ estimation
-    def _window(self, readings=None):
+    def _window(self, readings=None, raw: bool = False):
         """(set-points (K, N) cycles, readings (K, S + 1), age (K,) steps before the latest) of
-        ``readings`` (default: the window)."""
+        ``readings`` (default: the window); the detected energies corrected by the estimated
+        detector gain and offset unless ``raw``."""
         readings = self._history if readings is None else readings
         u = np.stack([h[0] for h in readings])
         y = np.stack([h[1] for h in readings])
+        if not raw:
+            y = self.calibration.correct(y)
         age = np.arange(len(u) - 1, -1, -1, dtype=np.float64)  # steps before the latest
         return u, y, age
 
@@ -311,6 +323,16 @@ class PhaseTracker:
             z, cost = yield from self._refine(z, u, y, age, None, p.iterations)
             i = int(np.argmin(cost))
             x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
+        if cost[i] > self._tolerance() and p.calibrate:
+            # A detector off its calibration: fit its gain and offset to the best estimate's
+            # predictions, then refine again on the corrected readings.
+            pred = self._predict(x[i : i + 1], u, age, fitted_drift)[0]
+            if self.calibration.fit_detector(pred, self._window(raw=True)[1][-len(u) :]):
+                y = self.calibration.correct(self._window(raw=True)[1][-len(u) :])
+                z = np.concatenate([x, np.tile(fitted_drift, (len(x), 1))], axis=1)
+                z, cost = yield from self._refine(z, u, y, age, None, p.iterations)
+                i = int(np.argmin(cost))
+                x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         self.residual = float(cost[i])
         if self.residual <= self._tolerance():
             self._start_tracking(x[i] + (self._tick - started) * fitted_drift)
@@ -391,6 +413,7 @@ class PhaseTracker:
                 res, jac, _ = residuals(z, True)
             else:
                 lam *= 10.0
+        self._path = z[: k * n].reshape(k, n)  # the fitted errors at every reading
         return z[(k - 1) * n : k * n], z[k * n :], data_cost
 
     def _track(self) -> None:
@@ -417,6 +440,31 @@ class PhaseTracker:
         self._bad_fits = 0
         self.drift = drift
         self.estimate = _wrap(x)
+        if p.calibrate:
+            self._calibrate(u, self._path)
+
+    def _calibrate(self, u: np.ndarray, path: np.ndarray) -> None:
+        """Feed the window's fit to the calibration; every ``calibration_every`` readings, move
+        the model's wavelength and pulse width and re-express the state in the new cycles."""
+        raw = self._window(raw=True)[1]
+        optics = self.params.calibrate_optics
+        self.calibration.observe(self.stacker, u, path, raw, self.period_fs, optics)
+        if not optics or self._tick % self.params.calibration_every:
+            return
+        old_period = self.period_fs
+        if not self.calibration.update_optics():
+            return
+        self.stacker = self.calibration.stacker()
+        self.period_fs = self.calibration.period_fs
+        ratio = old_period / self.period_fs  # the same fs are this many new cycles per old one
+        latest = self._history[-1][0]
+        self.estimate = _wrap(self.estimate + latest - latest * ratio)  # same phase
+        self.drift = self.drift * ratio
+        self._base = self._base * ratio
+        self._last_command = self._last_command * ratio
+        self._history = deque(
+            ((h[0] * ratio, h[1]) for h in self._history), maxlen=self.params.window
+        )
 
     def _recover(self) -> None:
         """A local re-fit of the errors and the drift to the readings since the fit failed,

@@ -11,11 +11,14 @@ from __future__ import annotations
 
 from ops_sim_ros.config import DETECTORS, make_config
 from ops_sim_ros.node_params import ParamSpec
-from ops_sim_ros.ros_interface import ParameterError, run_node
+from ops_sim_ros.ros_interface import QOS_RELIABLE, ParameterError, run_node
+from std_msgs.msg import Float32MultiArray
 
 from .loop_node import ControllerLoopNode
 from .tracker import PhaseTracker, TrackerParams
 
+#: The calibration's estimates [wavelength_nm, pulse_fwhm_fs, detector_gain, detector_offset].
+TOPIC_CALIBRATION = "ops/tracker/calibration"
 _D = TrackerParams()
 PARAMS = [
     ParamSpec("wavelength_nm", 1030.0, "nominal carrier wavelength, nm", low=100.0, high=20000.0),
@@ -48,6 +51,11 @@ class TrackerNode(ControllerLoopNode):
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
         self._model = {k: self.values[k] for k in _MODEL_FIELDS}
+        # What the online calibration estimates (wavelength_nm, pulse_fwhm_fs, detector_gain,
+        # detector_offset), published with each progress line.
+        self._pub_calibration = self.create_publisher(
+            Float32MultiArray, TOPIC_CALIBRATION, QOS_RELIABLE
+        )
 
     def build_controller(self, delays, samples_per_slot):
         try:
@@ -58,7 +66,13 @@ class TrackerNode(ControllerLoopNode):
         return PhaseTracker(model, self._params, setpoints_fs=delays, seed=self.seed)
 
     def progress(self) -> str:
-        return f"reading {self.readings} ({'locked' if self.ctrl.locked else 'acquiring'})"
+        est = self.ctrl.calibration.estimates()
+        self._pub_calibration.publish(Float32MultiArray(data=[float(v) for v in est.values()]))
+        return (
+            f"reading {self.readings} ({'locked' if self.ctrl.locked else 'acquiring'}; "
+            f"model {est['wavelength_nm']:.1f} nm, {est['pulse_fwhm_fs']:.0f} fs, detector "
+            f"gain {est['detector_gain']:.3f} offset {est['detector_offset']:+.4f})"
+        )
 
 
 def main(args=None):

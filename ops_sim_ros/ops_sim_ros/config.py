@@ -27,6 +27,8 @@ LIMITS = {
     "samples_per_slot": (1, 64),
     "quadrature_points": (2, 64),
     "detector_noise": (0.0, 1.0),
+    "detector_gain": (0.01, 100.0),
+    "detector_offset": (-1.0, 1.0),
     "jitter_sigma_cycles": (0.0, 1.0),
     "drift_slope_min_cycles": (0.0, 1.0),
     "drift_slope_max_cycles": (0.0, 1.0),
@@ -87,6 +89,8 @@ class OpsConfig:
     detector: str = "polarizer"  # "polarizer" (s port) or "total" (both polarizations)
     samples_per_slot: int = 8  # samples of the detected trace per pulse slot
     detector_noise: float = 0.0  # std of additive noise on detected pulse energies (normalized)
+    detector_gain: float = 1.0  # detected energies = gain * true + offset (+ noise); power exact
+    detector_offset: float = 0.0
     # --- noise of the delay lines (eq. 2 / 4), in optical cycles: a random walk whose step is
     # N(mu, jitter_sigma) (the zero-mean part clipped at +- jitter_clip_sigmas sigma)
     jitter_sigma_cycles: float = 0.001

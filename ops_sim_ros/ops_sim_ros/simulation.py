@@ -165,6 +165,9 @@ class BatchedSimulation:
         applied += setpoints  # the noise array is fresh: reuse it for the applied delays
         true_energies, power = self.stacker.energies_and_power(applied)
         energies = true_energies
+        gain, offset = self.config.detector_gain, self.config.detector_offset
+        if gain != 1.0 or offset != 0.0:  # a detector off its calibration (power stays exact)
+            energies = energies * gain + offset
         if self.config.detector_noise > 0.0:
             energies = energies + self.rng.normal(0.0, self.config.detector_noise, energies.shape)
         reward = power_to_reward(power)
