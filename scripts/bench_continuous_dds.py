@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""Continuous operation over DDS: `ros2 run ops_sim_ros sim` (free-running) and a controller node
+(`tracker`, `spgd` or `policy -p model:=DIR`) as real processes, for a given time per simulator
+seed; prints the figures of `evaluate --continuous` (ops_gym_bridge.continuous) computed from
+every `ops/power` reading received: fraction >= 0.95 after the first lock, lock losses (< 0.8),
+worst reading, readings to the first lock.
+
+Usage (after `source setup.bash`):
+  python scripts/bench_continuous_dds.py --controller tracker --mode hard --seconds 600 \
+      --seeds 1000 [--model models/n5_hard] [--out runs/bench_continuous_dds/x.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_closed_loop import REPO, start, stop
+
+
+def run_once(args, seed: int, logdir: Path) -> list[float]:
+    """The `ops/power` readings of one run: from the controller's start for ``args.seconds``."""
+    import rclpy
+    from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_POWER
+    from std_msgs.msg import Float32
+
+    sim_cmd = ["ros2", "run", "ops_sim_ros", "sim", "--ros-args", "-p", f"stage:={args.stage}"]
+    sim_cmd += ["-p", f"mode:={args.mode}", "-p", f"split:={args.split}", "-p", f"seed:={seed}"]
+    if args.controller == "policy":
+        ctl_cmd = ["ros2", "run", "ops_controller_ros", "policy", "--ros-args", "-p"]
+        ctl_cmd += [f"model:={Path(args.model).resolve()}", "-p", f"seed:={seed}"]
+    else:
+        ctl_cmd = ["ros2", "run", "ops_controller_ros", args.controller, "--ros-args"]
+        ctl_cmd += ["-p", f"seed:={seed}"]
+    tag = f"{args.controller}_{args.mode}_{seed}"
+    sim = start(sim_cmd, logdir / f"sim_{tag}.log")
+    node = rclpy.create_node(f"bench_continuous_dds_{seed}")
+    power: list[float] = []
+    node.create_subscription(Float32, TOPIC_POWER, lambda m: power.append(m.data), QOS_RELIABLE)
+    ctl = None
+    try:
+        deadline = time.monotonic() + 30
+        while len(power) < 20 and time.monotonic() < deadline:  # the simulator is up
+            rclpy.spin_once(node, timeout_sec=0.05)
+        if len(power) < 20:
+            raise RuntimeError(f"no ops/power from the simulator (see {logdir})")
+        ctl = start(ctl_cmd, logdir / f"ctl_{tag}.log")
+        power.clear()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < args.seconds:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        return list(power)
+    finally:
+        if ctl is not None:
+            stop(ctl)
+        stop(sim)
+        node.destroy_node()
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--controller", choices=("tracker", "spgd", "policy"), default="tracker")
+    ap.add_argument("--model", help="model directory (with --controller policy)")
+    ap.add_argument("--stage", type=int, default=5)
+    ap.add_argument("--mode", default="hard")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--seconds", type=float, default=600.0, help="time per run")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1000])
+    ap.add_argument("--out", help="also write the figures to this JSON file")
+    args = ap.parse_args()
+    if (args.controller == "policy") != bool(args.model):
+        ap.error("--model DIR goes with --controller policy (and only with it)")
+    if args.seconds <= 0:
+        ap.error("--seconds must be > 0")
+    os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 30))
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    import rclpy
+
+    from ops_gym_bridge import continuous
+
+    logdir = REPO / "runs" / "bench_continuous_dds"
+    logdir.mkdir(parents=True, exist_ok=True)
+    rclpy.init()
+    runs = []
+    try:
+        for seed in args.seeds:
+            readings = run_once(args, seed, logdir)
+            if not readings:
+                raise RuntimeError(f"no readings with the controller running (see {logdir})")
+            runs.append(continuous.lock_figures(readings))
+            print(continuous.format_run(f"seed {seed}", runs[-1]), flush=True)
+    finally:
+        rclpy.shutdown()
+    total = continuous.overall(runs)
+    print(continuous.format_run("overall", total))
+    print(
+        f"({args.controller} {args.model or ''} stage {args.stage} {args.mode} {args.split}, "
+        f"{args.seconds:.0f} s per run, {sum(r['readings'] for r in runs)} readings; load "
+        f"average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end)"
+    )
+    if args.out:
+        out = {"args": vars(args), "overall": total, "per_seed": runs}
+        Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
