@@ -76,7 +76,9 @@ def build_parser():
         },
         several=("split",),
     )
-    p.add_argument("--episodes", type=int, default=5, help="episodes per seed and split")
+    p.add_argument(
+        "--episodes", type=cli_args.positive_int, default=5, help="episodes per seed and split"
+    )
     p.add_argument(
         "--seeds",
         type=int,
@@ -84,8 +86,14 @@ def build_parser():
         default=[0, 1, 2, 3, 4],
         help="evaluation seeds (the mean +- std is over seeds)",
     )
-    p.add_argument("--steps", type=int, default=EPISODE_STEPS, help="steps per episode")
-    p.add_argument("--out", help="output directory (default: MODEL/eval, or ./eval_CONTROLLER)")
+    p.add_argument(
+        "--steps", type=cli_args.positive_int, default=EPISODE_STEPS, help="steps per episode"
+    )
+    p.add_argument(
+        "--out",
+        help="output directory (default: runs/eval/NAME_nSTAGE_MODE; NAME: the model "
+        "folder's or the controller's)",
+    )
     p.add_argument(
         "--continuous",
         type=int,
@@ -189,7 +197,7 @@ def resolve_subject(args) -> Subject:
         params = _parse(args.controller_param, "--controller-param")
         subject = Subject(
             name=args.controller,
-            stage=args.stage or cli_args.ENV_DEFAULTS["stage"],
+            stage=cli_args.ENV_DEFAULTS["stage"] if args.stage is None else args.stage,
             mode=args.mode or cli_args.ENV_DEFAULTS["mode"],
             detector=args.detector or cli_args.ENV_DEFAULTS["detector"],
             env_overrides=env_overrides,
@@ -251,6 +259,7 @@ def summarize(per_seed: list[dict[str, np.ndarray]]) -> dict[str, Any]:
         "final_power_std": float(final.std()),
         "final_power_per_seed": final.tolist(),
         "final_power_min_episode": float(all_final.min()),
+        "final_power_per_episode": [round(float(v), 6) for v in all_final],
         "episode_return_mean": float(ret.mean()),
         "episode_return_std": float(ret.std()),
         "initial_power_mean": float(curves[:, 0].mean()),
@@ -298,20 +307,51 @@ def evaluate(args, subject: Subject | None = None) -> dict[str, Any]:
         "splits": {},
     }
     t0 = time.monotonic()
+    runs_total = len(args.splits) * len(args.seeds)
+    if not args.quiet:
+        print(
+            f"[evaluate] {subject.name} stage={subject.stage} mode={subject.mode}: "
+            f"{runs_total} runs of {args.episodes} episodes x {args.steps} steps "
+            f"(splits {' '.join(args.splits)}, seeds {' '.join(map(str, args.seeds))})",
+            flush=True,
+        )
+    done = 0
     for split in args.splits:
         per_seed = []
         for seed in args.seeds:
             per_seed.append(subject.run(split, args.episodes, args.steps, seed))
+            done += 1
             if not args.quiet:
+                elapsed = time.monotonic() - t0
                 print(
-                    f"[evaluate] {subject.name} stage={subject.stage} mode={subject.mode} "
-                    f"split={split} seed={seed}: "
-                    f"final P_N/P_max {per_seed[-1]['power'][:, -1].mean():.4f}",
+                    f"[evaluate] {done}/{runs_total} split={split} seed={seed}: "
+                    f"final P_N/P_max {per_seed[-1]['power'][:, -1].mean():.4f} "
+                    f"({_duration(elapsed)} elapsed, "
+                    f"~{_duration(elapsed / done * (runs_total - done))} left)",
                     flush=True,
                 )
         results["splits"][split] = summarize(per_seed)
     results["wall_s"] = round(time.monotonic() - t0, 2)
     return results
+
+
+def _duration(seconds: float) -> str:
+    """``42 s`` or ``3 min 05 s``: a duration for progress lines."""
+    seconds = round(seconds)
+    return f"{seconds} s" if seconds < 60 else f"{seconds // 60} min {seconds % 60:02d} s"
+
+
+def default_out(args, subject: Subject) -> Path:
+    """Where results go without ``--out``: ``runs/eval/NAME_nSTAGE_MODE`` under the current
+    directory (``runs/`` is git-ignored at the repository root; a shipped model's tracked
+    ``eval/`` folder is never overwritten by accident)."""
+    if args.model:
+        from ops_controller_ros.policy_io import resolve_paths
+
+        name = resolve_paths(args.model)[0].parent.name
+    else:
+        name = subject.name
+    return Path("runs") / "eval" / f"{name}_n{subject.stage}_{subject.mode}"
 
 
 def write_outputs(results: dict[str, Any], out: Path, plot: bool = True) -> list[Path]:
@@ -381,14 +421,7 @@ def run(argv: list[str] | None = None) -> int:
     except (EvaluationError, ValueError) as exc:
         print(f"[evaluate] error: {exc}", file=sys.stderr, flush=True)
         return 2
-    if args.out:
-        out = Path(args.out)
-    elif args.model:
-        from ops_controller_ros.policy_io import resolve_paths
-
-        out = resolve_paths(args.model)[0].parent / "eval"
-    else:
-        out = Path(f"eval_{args.controller}")
+    out = Path(args.out) if args.out else default_out(args, subject)
     if args.continuous is not None:
         written = continuous.write_outputs(results, out, plot=not args.no_plot)
         print(continuous.format_table(results))
