@@ -25,22 +25,33 @@ from bench_tracker import replace_section
 SECTION = "## Closed loop over DDS: `sim` + `tracker`"
 
 
-def lock_time(seed: int, logdir: Path, timeout: float = 60.0) -> float:
-    """Seconds from the tracker's start to 0.95 over the last 10 readings (inf: not within
-    ``timeout``)."""
+def lock_time(
+    seed: int,
+    logdir: Path,
+    timeout: float = 60.0,
+    sim_params: tuple[str, ...] = ("stage:=5", "mode:=medium"),
+    controller: list[str] | None = None,
+    extra: list[list[str]] = (),
+) -> float:
+    """Seconds from the controller's start to 0.95 over the last 10 readings (inf: not within
+    ``timeout``). ``controller``: its command line (default: the tracker with ``seed``);
+    ``extra``: more commands started with it (e.g. ``ros2 topic echo``), stopped with it."""
     import rclpy
     from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_POWER
     from std_msgs.msg import Float32
 
+    params = [a for p in (*sim_params, f"seed:={seed}") for a in ("-p", p)]
     sim = start(
-        ["ros2", "run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=5", "-p",
-         "mode:=medium", "-p", f"seed:={seed}"],
-        logdir / f"sim_{seed}.log",
-    )  # fmt: skip
+        ["ros2", "run", "ops_sim_ros", "sim", "--ros-args", *params], logdir / f"sim_{seed}.log"
+    )
+    controller = controller or [
+        "ros2", "run", "ops_controller_ros", "tracker", "--ros-args", "-p", f"seed:={seed}"
+    ]  # fmt: skip
     node = rclpy.create_node(f"bench_tracker_dds_{seed}")
     power: list[float] = []
     node.create_subscription(Float32, TOPIC_POWER, lambda m: power.append(m.data), QOS_RELIABLE)
     tracker = None
+    others = []
     try:
         deadline = time.monotonic() + 30
         while len(power) < 20 and time.monotonic() < deadline:  # the simulator is up
@@ -48,10 +59,8 @@ def lock_time(seed: int, logdir: Path, timeout: float = 60.0) -> float:
         if len(power) < 20:
             raise RuntimeError(f"no ops/power from the simulator (see {logdir})")
         t0 = time.monotonic()
-        tracker = start(
-            ["ros2", "run", "ops_controller_ros", "tracker", "--ros-args", "-p", f"seed:={seed}"],
-            logdir / f"tracker_{seed}.log",
-        )
+        tracker = start(controller, logdir / f"{controller[3]}_{seed}.log")
+        others = [start(cmd, logdir / f"{cmd[1]}_{k}_{seed}.log") for k, cmd in enumerate(extra)]
         power.clear()
         while time.monotonic() - t0 < timeout:
             rclpy.spin_once(node, timeout_sec=0.05)
@@ -59,6 +68,8 @@ def lock_time(seed: int, logdir: Path, timeout: float = 60.0) -> float:
                 return time.monotonic() - t0
         return float("inf")
     finally:
+        for proc in others:
+            stop(proc)
         if tracker is not None:
             stop(tracker)
         stop(sim)

@@ -1,10 +1,13 @@
 #!/usr/bin/env python3
 """The SPGD-PID baseline in every mode: where the classic controller works and where it stalls.
 
-Runs ``ros2 run ops_gym_bridge evaluate --spgd`` (the same evaluation as for learned policies:
-5 seeds x 5 episodes of 200 steps, train and test environments) for every mode at
-the given stage, then draws docs/figures/spgd_baseline.png (P_N / P_max against the step, mean and
-standard deviation over seeds, on the test environment) and prints a markdown table.
+Runs ``ros2 run ops_gym_bridge evaluate --spgd`` with the paper's SPGD-PID (``spgd.PAPER``: no
+normalized gradient, no restarts; ``--variant default`` runs the node's defaults instead) -- the
+same evaluation as for learned policies: 5 seeds x 5 episodes of 200 steps, train and test
+environments -- for every mode at the given stage, then draws the figure (default
+runs/spgd/spgd_baseline.png; docs/results.md's is made with
+``--figure docs/figures/spgd_baseline.png``: P_N / P_max against the step, mean and standard
+deviation over seeds, on the test environment) and prints a markdown table.
 
 ``--sweep`` instead measures, in-process, whether other SPGD settings change the picture in medium
 and hard mode, and whether SPGD can hold the optimum against the hard-mode drift when it starts
@@ -12,6 +15,7 @@ next to it (``initial_sigma_cycles=0.025, initial_offset_sigmas=0``): mean P_N /
 the last 50 of 300 iterations.
 
 Usage (after `source setup.bash`): python scripts/spgd_baseline.py [--stage 5] [--out runs/spgd]
+                                   [--figure docs/figures/spgd_baseline.png] [--variant paper]
                                    python scripts/spgd_baseline.py --sweep [--stage 5]
 """
 
@@ -29,7 +33,14 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 
 
-def evaluate(stage: int, mode: str, out: Path) -> dict:
+def variant_params(variant: str) -> dict:
+    """SPGD's parameters: ``paper`` (Table 1's baseline) or ``default`` (the node's)."""
+    from ops_controller_ros.spgd import PAPER
+
+    return dict(PAPER) if variant == "paper" else {}
+
+
+def evaluate(stage: int, mode: str, out: Path, params: dict) -> dict:
     ros2 = shutil.which("ros2")
     cmd = (
         [ros2, "run", "ops_gym_bridge", "evaluate"]
@@ -46,6 +57,7 @@ def evaluate(stage: int, mode: str, out: Path) -> dict:
         str(out),
         "--quiet",
         "--no-plot",
+        *(f"--controller-param={k}={str(v).lower()}" for k, v in params.items()),
     ]
     print(f"[spgd] {mode}: {' '.join(cmd[1:] if ros2 else cmd)}", flush=True)
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
@@ -63,7 +75,7 @@ SWEEP = (  # (gain, ki, perturbation_fs, momentum)
 )
 
 
-def sweep(stage: int, seeds: int = 4, iterations: int = 300) -> None:
+def sweep(stage: int, base: dict, seeds: int = 4, iterations: int = 300) -> None:
     from ops_gym_bridge.rollouts import rollout_controller
     from ops_sim_ros.config import make_config
 
@@ -79,7 +91,7 @@ def sweep(stage: int, seeds: int = 4, iterations: int = 300) -> None:
     print("| gain | ki | perturbation (fs) | momentum | medium | hard | hard, start at optimum |")
     print("|---|---|---|---|---|---|---|")
     for gain, ki, pert, mom in SWEEP:
-        p = dict(gain=gain, ki=ki, perturbation_fs=pert, momentum=mom)
+        p = dict(base, gain=gain, ki=ki, perturbation_fs=pert, momentum=mom)
         print(
             f"| {gain} | {ki} | {pert} | {mom} | {run(p, 'medium'):.3f} | {run(p, 'hard'):.3f} | "
             f"{run(p, 'hard', initial_sigma_cycles=0.025, initial_offset_sigmas=0.0):.3f} |",
@@ -91,16 +103,19 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--stage", type=int, default=5)
     ap.add_argument("--out", default="runs/spgd", help="evaluation outputs")
-    ap.add_argument("--figure", default=str(REPO / "docs" / "figures" / "spgd_baseline.png"))
+    ap.add_argument("--figure", default="runs/spgd/spgd_baseline.png")
+    ap.add_argument("--variant", choices=("paper", "default"), default="paper")
     ap.add_argument("--sweep", action="store_true", help="SPGD settings sweep (see above)")
     args = ap.parse_args()
+    params = variant_params(args.variant)
     if args.sweep:
-        sweep(args.stage)
+        sweep(args.stage, params)
         return
 
     from ops_sim_ros.config import MODES
 
-    results = {m: evaluate(args.stage, m, Path(args.out) / f"n{args.stage}_{m}") for m in MODES}
+    out = Path(args.out)
+    results = {m: evaluate(args.stage, m, out / f"n{args.stage}_{m}", params) for m in MODES}
 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -133,6 +148,7 @@ def main():
     ax.grid(alpha=0.3)
     ax.legend(loc="center right", fontsize=9)
     fig.tight_layout()
+    Path(args.figure).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.figure)
     print(f"[spgd] wrote {args.figure}")
     print(

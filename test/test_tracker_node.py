@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import signal
-import time
 
 import numpy as np
 import pytest
 from ros_testing import assert_no_traceback
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
 
 
 def start(procs, name, pkg, exe, *params):
@@ -20,7 +19,7 @@ def start(procs, name, pkg, exe, *params):
 
 
 @pytest.mark.parametrize("lockstep", ["false", "true"])
-def test_tracker_locks_a_medium_n5_stacker_within_10_s(procs, observer, lockstep):
+def test_tracker_locks_a_medium_n5_stacker_within_1000_readings(procs, observer, lockstep):
     start(
         procs,
         "sim",
@@ -34,15 +33,18 @@ def test_tracker_locks_a_medium_n5_stacker_within_10_s(procs, observer, lockstep
     observer.wait_for_subscriber()
     tracker = start(procs, "tracker", "ops_controller_ros", "tracker", "seed:=3")
     tracker.wait_for("closing the loop", timeout=30)
-    started = time.monotonic()
+    # Counted in readings, not seconds: 1000 readings are 10 s of the simulator at 100 Hz on an
+    # idle machine; on a loaded one both run slower, and the test asks about the controller.
+    before = observer.count("power")
+
+    def locked():
+        p = observer.values("power")
+        return len(p) - before > 20 and np.mean(p[-10:]) >= 0.95
+
     observer.wait_until(
-        lambda: (
-            len(observer.values("power")) > 20 and np.mean(observer.values("power")[-10:]) >= 0.95
-        ),
-        timeout=10,
-        what="P_N/P_max >= 0.95 over the last 10 readings within 10 s of the tracker's start",
+        locked, timeout=90, what="P_N/P_max >= 0.95 over the last 10 readings (tracker running)"
     )
-    assert time.monotonic() - started <= 10.0
+    assert observer.count("power") - before <= 1000
     tracker.wait_for(r"reading \d+ \(locked\): P_N/P_max = 0\.9", timeout=10)
     tracker.signal(signal.SIGTERM)
     assert tracker.wait_exit(15) == 0  # a clean exit on SIGTERM

@@ -23,6 +23,7 @@ from std_msgs.msg import Float32, Float32MultiArray
 
 from .node_params import ParamSpec, declare_all
 from .ros_interface import (
+    QOS_EVERY_READING,
     QOS_RELIABLE,
     TOPIC_INTENSITY,
     TOPIC_POWER,
@@ -101,7 +102,9 @@ class MonitorNode(Node):
         self._guard = MessageGuard(self)
 
         self.create_subscription(Float32MultiArray, TOPIC_INTENSITY, self._on_trace, QOS_RELIABLE)
-        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
+        # Every reading counts (the history plot, the readings figure): a deep queue, so drawing a
+        # frame does not lose the readings that arrive meanwhile.
+        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_EVERY_READING)
         self.create_timer(self._frame_period, self._on_frame)
         if self._save is not None and self._save.suffix.lower() == ".png":
             self.create_timer(v["png_period_s"], self._write_png)

@@ -31,11 +31,17 @@ TOPIC_POWER = "ops/power"
 TOPIC_REWARD = "ops/reward"
 TOPIC_DELAYS = "ops/delays"
 TOPIC_DELAY_CMD = "ops/delay_cmd"
+#: Simulator-only oracle: the delays really applied (set-point + hidden delay-line error), fs. A
+#: real rig cannot publish it; a policy trained on the authors' observation set needs it.
+TOPIC_DELAYS_ACTUAL = "ops/delays_actual"
 SERVICE_RESET = "ops/reset"
 TOPIC_DIAGNOSTICS = "/diagnostics"
 
 #: Outputs and commands: reliable, a short queue. A flood of commands is bounded by the depth.
 QOS_RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: A subscriber that wants every reading although its own callbacks can be slow (the monitor draws
+#: a frame in ~0.1 s while 100 readings/s arrive): ten seconds of readings queue up.
+QOS_EVERY_READING = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 #: ``ops/delays`` is state: latched (transient local, last value only), so a controller that
 #: starts later - even against a lockstep simulator that publishes only when commanded - learns
 #: the current set-points at once. Volatile subscribers match it too and see only new values.

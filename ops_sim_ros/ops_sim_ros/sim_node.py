@@ -28,6 +28,7 @@ from .ros_interface import (
     SERVICE_RESET,
     TOPIC_DELAY_CMD,
     TOPIC_DELAYS,
+    TOPIC_DELAYS_ACTUAL,
     TOPIC_DIAGNOSTICS,
     TOPIC_INTENSITY,
     TOPIC_POWER,
@@ -72,7 +73,12 @@ PARAMS = [
         choices=DETECTORS,
     ),
     ParamSpec(
-        "seed", -1, "random seed; -1 draws one from the OS", low=-1, high=2**31 - 1, read_only=True
+        "seed",
+        -1,
+        "random seed; -1 draws one from the OS (logged at start, in diagnostics)",
+        low=-1,
+        high=2**31 - 1,
+        read_only=True,
     ),
     ParamSpec(
         "rate_hz", 100.0, "free-running step rate (a rig's: 1 Hz to 1 kHz)", low=1.0, high=1000.0
@@ -129,8 +135,12 @@ class SimNode(Node):
         super().__init__("ops_sim")
         self._values = declare_all(self, PARAMS, on_change=self._on_set_parameters)
         self._config = config_from_params(self._values)
-        seed = None if self._values["seed"] < 0 else self._values["seed"]
-        self._sim = BatchedSimulation(self._config, num_envs=1, seed=seed)
+        # The seed in use, drawn from the OS when -1: logged and in the diagnostics, so that any
+        # run can be replayed with -p seed:=SEED.
+        self.seed = self._values["seed"]
+        if self.seed < 0:
+            self.seed = int(np.random.SeedSequence().entropy % 2**31)
+        self._sim = BatchedSimulation(self._config, num_envs=1, seed=self.seed)
 
         self._pub_intensity = self.create_publisher(
             Float32MultiArray, TOPIC_INTENSITY, QOS_RELIABLE
@@ -138,6 +148,10 @@ class SimNode(Node):
         self._pub_power = self.create_publisher(Float32, TOPIC_POWER, QOS_RELIABLE)
         self._pub_reward = self.create_publisher(Float32, TOPIC_REWARD, QOS_RELIABLE)
         self._pub_delays = self.create_publisher(Float32MultiArray, TOPIC_DELAYS, QOS_STATE)
+        # Simulator-only oracle (docs/interfaces.md): for policies of the authors' observation set.
+        self._pub_actual = self.create_publisher(
+            Float32MultiArray, TOPIC_DELAYS_ACTUAL, QOS_RELIABLE
+        )
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset)
@@ -151,7 +165,7 @@ class SimNode(Node):
         self._restart_timers()
         self.get_logger().info(
             f"stage={self._config.stage} mode={self._config.mode} split={self._config.split} "
-            f"detector={self._config.detector} "
+            f"detector={self._config.detector} seed={self.seed} "
             + ("lockstep" if self._values["lockstep"] else f"rate={self._values['rate_hz']} Hz")
         )
         self._publish()
@@ -200,6 +214,7 @@ class SimNode(Node):
         r = self._result
         trace = self._sim.trace(r)[0]
         self._pub_delays.publish(float_array_msg(r.setpoints_fs[0]))
+        self._pub_actual.publish(float_array_msg(r.applied_fs[0]))
         self._pub_intensity.publish(trace_msg(trace, self._config.samples_per_slot))
         self._pub_power.publish(Float32(data=float(r.power[0])))
         self._pub_reward.publish(Float32(data=float(r.reward[0])))
@@ -215,6 +230,7 @@ class SimNode(Node):
             KeyValue(key=k, value=str(v))
             for k, v in (
                 ("stage", self._config.stage),
+                ("seed", self.seed),
                 ("mode", self._config.mode),
                 ("split", self._config.split),
                 ("detector", self._config.detector),
