@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from ros_testing import REPO, assert_no_traceback, ros2_command
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
 
 
 @pytest.fixture(scope="module")
@@ -156,4 +156,32 @@ def test_shipped_model_stacks_over_dds(procs, observer):
         return len(recent) == 50 and float(np.mean(recent)) >= 0.85
 
     observer.wait_until(stacked, timeout=60, what="mean P_N/P_max of 50 readings >= 0.85")
+    assert_no_traceback(runner.output)
+
+
+def test_authors_observation_model_runs_on_the_oracle_topic(procs, observer, tmp_path):
+    """A model trained on the authors' observation set (the applied delays in it) runs in the
+    policy node only with -p observation:=authors, on the simulator's ops/delays_actual (it acts
+    on no reading without it); on the default rig set it stops with a message that says why."""
+    out = tmp_path / "td3_authors"
+    cmd = [*ros2_command(), "run", "ops_gym_bridge", "train", "--algo", "td3", "--stage", "2"]
+    cmd += ["--mode", "easy", "--observation", "authors", "--timesteps", "200"]
+    cmd += ["--out", str(out), "--no-progress"]
+    cmd += ["--hyperparams", "learning_starts=64", "batch_size=32", "net_arch=[16,16]"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=200)
+    assert done.returncode == 0, done.stdout + done.stderr
+    procs.ros2(
+        "run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=2", "-p", "mode:=easy", name="sim"
+    )
+    refused = policy(procs, out, name="policy_rig")
+    assert refused.wait_exit(60) == 2
+    assert "trained on the 'authors' observation set" in refused.output, refused.output
+    assert "-p observation:=authors" in refused.output
+    runner = procs.ros2(
+        "run", "ops_controller_ros", "policy", "--ros-args", "-p", f"model:={out}",
+        "-p", "observation:=authors", name="policy",
+    )  # fmt: skip
+    runner.wait_for(r"loaded TD3 model for stage 2 .*authors observation", timeout=120)
+    runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
+    wait_for_moved_setpoints(observer)
     assert_no_traceback(runner.output)

@@ -19,12 +19,13 @@ import time
 
 import numpy as np
 from ops_sim_ros.node_params import ParamSpec, declare_all
-from ops_sim_ros.observation import pulse_energies_from_trace
+from ops_sim_ros.observation import OBSERVATION_SETS, pulse_energies_from_trace
 from ops_sim_ros.ros_interface import (
     QOS_RELIABLE,
     QOS_STATE,
     TOPIC_DELAY_CMD,
     TOPIC_DELAYS,
+    TOPIC_DELAYS_ACTUAL,
     TOPIC_INTENSITY,
     TOPIC_POWER,
     MessageGuard,
@@ -41,10 +42,24 @@ from std_msgs.msg import Float32, Float32MultiArray
 
 from . import controller_params
 from .command_tracker import CommandTracker
-from .policy_io import PolicyLoadError, PolicyRunner, check_stage, load_policy
+from .policy_io import (
+    PolicyLoadError,
+    PolicyRunner,
+    check_observation,
+    check_stage,
+    load_policy,
+)
 
 PARAMS = [
     ParamSpec("model", "", "trained model: the training output DIR or DIR/model.zip"),
+    ParamSpec(
+        "observation",
+        "rig",
+        "observation set the model was trained on: rig (measurable on a real stacker) or "
+        "authors (needs the simulator's ops/delays_actual oracle)",
+        choices=OBSERVATION_SETS,
+        read_only=True,
+    ),
     controller_params.TIMEOUT,
     controller_params.LOG_PERIOD,
 ]
@@ -62,6 +77,7 @@ class PolicyNode(Node):
         try:
             self._policy = load_policy(v["model"])
             self._runner = PolicyRunner(self._policy)
+            check_observation(self._policy.metadata, v["observation"], "-p observation:=")
         except PolicyLoadError as exc:
             raise ParameterError(f"model: {exc}") from None
         self._spec = self._runner.spec
@@ -77,6 +93,12 @@ class PolicyNode(Node):
         self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
         self.create_subscription(Float32MultiArray, TOPIC_INTENSITY, self._on_trace, QOS_RELIABLE)
         self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
+        self._actual: np.ndarray | None = None  # applied delays (authors' observation set)
+        self._waiting: Float32 | None = None  # a reading that waits for its applied delays
+        if self._spec.needs_applied_delays:
+            self.create_subscription(
+                Float32MultiArray, TOPIC_DELAYS_ACTUAL, self._on_actual, QOS_RELIABLE
+            )
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
         self.create_timer(0.05, self._watchdog)
         self.create_timer(v["log_period_s"], self._log_progress)
@@ -103,7 +125,17 @@ class PolicyNode(Node):
             self.get_logger().info("simulator found: running the policy")
         self._delays = delays
         self._trace = None
+        self._actual = self._waiting = None
         self._tracker.on_setpoints(delays, accept_without_command=True)
+
+    def _on_actual(self, msg: Float32MultiArray):
+        """The simulator-only oracle of the applied delays (published right after ops/delays)."""
+        actual = np.asarray(msg.data, dtype=np.float64)
+        if self._tracker.matched and actual.size == self._spec.stage and np.isfinite(actual).all():
+            self._actual = actual
+            waiting, self._waiting = self._waiting, None
+            if waiting is not None:
+                self._on_power(waiting)
 
     def _on_trace(self, msg: Float32MultiArray):
         trace = self._guard.take(TOPIC_INTENSITY, trace_from_msg, msg)
@@ -123,9 +155,12 @@ class PolicyNode(Node):
         power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
         if power is None or not self._tracker.matched or self._trace is None:
             return
+        if self._spec.needs_applied_delays and self._actual is None:
+            self._waiting = msg  # acted on when this step's applied delays arrive
+            return
         trace, samples = self._trace
         energies = pulse_energies_from_trace(trace, samples)
-        action = self._runner.act(energies, power, self._delays).astype(np.float64)
+        action = self._runner.act(energies, power, self._delays, self._actual).astype(np.float64)
         command = self._delays + action * self._max_step_fs
         self._last_power = power
         self._steps += 1

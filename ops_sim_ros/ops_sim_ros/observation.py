@@ -136,7 +136,7 @@ class ObservationSpec:
     def describe(self) -> str:
         """A short human description, e.g. for error messages."""
         memory = f"history={self.history}" if self.history else "no memory"
-        return f"stage {self.stage}, {self.observation} observation, {self.dim} values ({memory})"
+        return f"stage {self.stage}, {self.dim} values ({memory}; {self.observation} observation)"
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) of the observation, float32 arrays of length ``dim``."""
