@@ -1,0 +1,66 @@
+"""The benchmark's protocol: agents and controllers on the same episodes, training through
+``train``'s own steps (what a user's ``ros2 run ops_gym_bridge train`` does)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from ops_gym_bridge.rollouts import controller_episodes, episode_seed, policy_episodes
+from ops_sim_ros.config import make_config
+
+from ops_gym_bridge import bench_worker
+from ops_gym_bridge import train as train_cli
+from ops_sim_ros import OpsEnv
+
+pytestmark = pytest.mark.timeout(180)
+
+
+def test_agents_and_controllers_run_the_same_episodes():
+    """A policy that holds still sees exactly what holding the set-points with absolute commands
+    (a controller's way) sees: same initial delay errors, same noise and drift draws."""
+    cfg = make_config(stage=3, mode="hard", split="test", episode_steps=30)
+    held = policy_episodes(lambda obs: np.zeros((len(obs), 3)), cfg, 4, 30, seed=2)["power"]
+    for e in range(4):
+        env = OpsEnv.from_config(cfg, max_episode_steps=30)
+        _, info = env.reset(seed=episode_seed(2, e))
+        powers = [info["power"]]
+        for _ in range(30):
+            powers.append(float(env.step_setpoints(np.zeros(3)).power[0]))
+        np.testing.assert_array_equal(held[e], powers)
+    assert len(set(held[:, 0])) == 4  # four different episodes
+    assert not np.allclose(held[:, 0], held[:, -1])  # the drift moved them
+    nominal = make_config(stage=3)
+    env = OpsEnv.from_config(cfg, max_episode_steps=30)
+    spgd = controller_episodes(env, "spgd", {}, nominal, 4, 30, seed=2)["power"]
+    np.testing.assert_array_equal(spgd[:, 0], held[:, 0])  # the same starts
+
+
+def test_benchmark_trains_through_train(tmp_path, monkeypatch):
+    """bench_worker.train runs train's resolve_run / build_env / build_model / learn_and_save
+    (no loop of its own): the model directory is train's, with the run's observation set."""
+    calls = []
+    learn = train_cli.learn_and_save
+
+    def counted(run):
+        calls.append(run.args)
+        return learn(run)
+
+    monkeypatch.setattr(train_cli, "learn_and_save", counted)
+    spec = {
+        "id": "n2_easy_td3_s0", "kind": "train", "algo": "td3", "stage": 2, "mode": "easy",
+        "seed": 0, "timesteps": 300, "episode_steps": 50, "detector": "total",
+        "observation": "authors", "save_every": 10_000,
+        "hyperparams": ["learning_starts=100", "batch_size=32", "net_arch=[16,16]"],
+        "eval": {"seeds": [0], "episodes": 2, "steps": 10},
+    }  # fmt: skip
+    model, meta = bench_worker.train(spec, tmp_path)
+    assert len(calls) == 1 and calls[0].observation == "authors"
+    assert meta["command_line"][:4] == ["ros2", "run", "ops_gym_bridge", "train"]
+    assert meta["hyperparams_set"] == "paper" and meta["observation"] == "authors"
+    assert meta["config"]["detector"] == "total" and meta["timesteps"] == 300
+    assert model.observation_space.shape == (1 + 3 + 2,)
+    rows = (tmp_path / "training.csv").read_text().splitlines()
+    assert len(rows) == 1 + 300 // 50  # a row per finished training episode
+    # Resuming a finished run trains nothing more.
+    bench_worker.train(spec, tmp_path)
+    assert len(calls) == 1
