@@ -15,7 +15,8 @@ Every profile also evaluates each no-training controller of
 
 Each run executes in its own process (``python -m ops_gym_bridge.bench_worker``, torch on one
 thread): ``--jobs`` at once on this machine (default: one per core), or as Ray tasks of one CPU each
-with ``--ray-address`` (``auto``, ``HOST:PORT`` or ``local``: a local Ray instance). A finished run
+with ``--ray-address`` (``auto``, ``HOST:PORT`` or ``local``: a local Ray instance), as many as the
+cluster has CPUs, the project shipped to the nodes (:mod:`ops_gym_bridge.ray_pool`). A finished run
 is stored at once and atomically in ``OUT/runs/<id>/``; ``OUT/work/<id>/`` holds runs in progress.
 Running the same command again skips every stored run and resumes the others from their last save.
 SIGINT (Ctrl-C) or SIGTERM stops every run in progress, each saving its model, and exits with 130.
@@ -40,6 +41,7 @@ from ops_sim_ros.observation import OBSERVATION_SETS
 from . import cli_args
 from .bench_worker import EXIT_INTERRUPTED, read_json, write_json
 from .hyperparams import ALGOS
+from .ray_pool import RayAddressError, RayPool, check_address
 
 PAPER_MODES = ("easy", "medium", "hard")
 PAPER_ALGOS = ("ppo", "td3", "sac")  # Table 1; --algos may name any of hyperparams.ALGOS
@@ -283,65 +285,6 @@ class LocalPool:
         self.running.clear()
 
 
-def _ray_run_worker(cmd: list[str], log_path: str) -> int:
-    """Body of the Ray task: the worker as a subprocess; a cancelled task stops it cleanly."""
-    with open(log_path, "a") as log:
-        proc = subprocess.Popen(
-            cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )  # fmt: skip
-        try:
-            return proc.wait()
-        except KeyboardInterrupt:  # ray.cancel
-            proc.send_signal(signal.SIGTERM)
-            return proc.wait()
-
-
-class RayPool:
-    """Runs as Ray tasks of one CPU each. ``OUT`` must be on a file system every node sees."""
-
-    def __init__(self, address: str, jobs: int, out: Path, log_dir: Path):
-        import ray
-
-        self.ray = ray
-        if address == "local":
-            ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False)
-        else:
-            ray.init(address=address, log_to_driver=False)
-        self.jobs = max(int(ray.cluster_resources().get("CPU", jobs)), 1)
-        self.task = ray.remote(num_cpus=1, max_retries=0)(_ray_run_worker)
-        self.out, self.log_dir = out, log_dir
-        self.running: dict[Any, str] = {}
-
-    def free(self) -> bool:
-        return len(self.running) < self.jobs
-
-    def submit(self, spec: dict, spec_path: Path) -> None:
-        cmd = worker_command(spec_path.resolve(), self.out.resolve())
-        ref = self.task.remote(cmd, str((self.log_dir / f"{spec['id']}.log").resolve()))
-        self.running[ref] = spec["id"]
-
-    def poll(self, timeout: float) -> list[tuple[str, int]]:
-        if not self.running:
-            return []
-        ready, _ = self.ray.wait(list(self.running), num_returns=1, timeout=timeout)
-        out = []
-        for ref in ready:
-            rid = self.running.pop(ref)
-            try:
-                out.append((rid, int(self.ray.get(ref))))
-            except Exception:  # a task that died
-                out.append((rid, 1))
-        return out
-
-    def stop(self, grace_s: float) -> None:
-        for ref in self.running:
-            self.ray.cancel(ref, force=False)
-        self.ray.wait(list(self.running), num_returns=len(self.running), timeout=grace_s)
-        self.running.clear()
-        self.ray.shutdown()
-
-
 class _Scheduler:
     """The run loop of :func:`execute`: starts runs while the pool has room, collects finished
     ones, tries a failed run again after a delay (``--retries``), prints progress."""
@@ -411,6 +354,7 @@ class _Scheduler:
 
     def _status(self) -> None:
         remaining = self.queue + [self.by_id[r] for r in _running_ids(self.pool)]
+        self.prog.jobs = self.pool.jobs  # a Ray cluster's CPUs come and go
         print(self.prog.line(remaining, self.out), flush=True)
         self.last_line = time.monotonic()
 
@@ -437,7 +381,7 @@ def execute(args, specs: list[dict], out: Path) -> int:
     stored = {s["id"] for s in specs if (out / "runs" / s["id"] / "run.json").exists()}
     todo = [s for s in specs if s["id"] not in stored]
     if args.ray_address:
-        pool = RayPool(args.ray_address, args.jobs, out, out / "logs")
+        pool = RayPool(args.ray_address, args.jobs, out, out / "logs", pip=args.ray_pip)
     else:
         pool = LocalPool(args.jobs, out, out / "logs")
     prog = Progress(total=len(specs), jobs=pool.jobs, done=len(stored))
@@ -447,8 +391,12 @@ def execute(args, specs: list[dict], out: Path) -> int:
             prog.learn(rec)
     print(
         f"[benchmark] {len(specs)} runs in the plan, {len(stored)} already stored in "
-        f"{out / 'runs'}; {len(todo)} to run, {pool.jobs} at a time"
-        + (f" on Ray ({args.ray_address})" if args.ray_address else ""),
+        f"{out / 'runs'}; {len(todo)} to run, "
+        + (
+            f"one per CPU of the Ray cluster ({args.ray_address}, {pool.jobs} now)"
+            if args.ray_address
+            else f"{pool.jobs} at a time"
+        ),
         flush=True,
     )
     scheduler = _Scheduler(args, specs, todo, out, pool, prog)
@@ -526,6 +474,12 @@ def build_parser():
         "--ray-address",
         help="run on Ray: auto, HOST:PORT, or local (start a local instance with --jobs CPUs)",
     )
+    p.add_argument(
+        "--ray-pip",
+        action="store_true",
+        help="have Ray install the runs' Python packages on every node (pip, the driver's "
+        "versions) instead of using the nodes' own",
+    )
     p.add_argument("--out", default="runs/benchmark", help="directory of the stored runs")
     p.add_argument("--save-every", type=int, default=10_000, help="steps between saves of a run")
     p.add_argument("--status-every", type=float, default=300.0, help="seconds between lines")
@@ -542,6 +496,12 @@ def run(argv: list[str] | None = None) -> int:
         return 2
     assert args.detector in DETECTORS
     out = Path(args.out)
+    if args.ray_address and not args.list:
+        try:  # before anything is written
+            check_address(args.ray_address)
+        except RayAddressError as exc:
+            print(f"[benchmark] error: {exc}", file=sys.stderr)
+            return 2
     out.mkdir(parents=True, exist_ok=True)
     specs = plan(args)
     if args.list:

@@ -212,7 +212,7 @@ def test_ray_smoke(tmp_path):
         "--extra-stages",
     )
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "on Ray (local)" in done.stdout
+    assert "CPU of the Ray cluster (local, 2 now)" in done.stdout
     ctl = {f"n2_{m}_{c}" for m in ("easy", "hard") for c in CONTROLLERS}
     assert set(stored(out)) == {*ctl, "n2_easy_td3_s0", "n2_hard_td3_s0"}
 
