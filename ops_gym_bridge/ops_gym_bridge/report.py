@@ -11,6 +11,10 @@ steps), ``fig8_control.png`` (P_N / P_max vs control step, testing environment),
 ``fig11_transfer.png`` (a policy trained on one mode evaluated on every mode's testing
 environment) and ``fig17_traces.png`` (output traces of a trained agent on N = 5 hard mode from a
 random start). Partial results are reported as such: every panel and table names what it covers.
+
+Several run directories (``report A B --out DIR``, e.g. the same protocol with the authors' and
+the rig's observation set): each one's table and figures go to ``DIR/<name of A>/`` ...,
+and ``DIR/table1_sets.md`` puts their Table 1 cells side by side.
 """
 
 from __future__ import annotations
@@ -68,6 +72,7 @@ def load_runs(root: Path) -> list[dict[str, Any]]:
             "mode": spec["mode"],
             "seed": spec.get("seed"),
             "detector": spec["detector"],
+            "observation": spec.get("observation", "rig"),
             "timesteps": rec.get("timesteps"),
             "eval": ev,
             "spec": spec,
@@ -137,6 +142,7 @@ def table1_rows(runs: list[dict]) -> list[dict[str, Any]]:
                         "paper_mean": paper[0] if paper else "",
                         "paper_std": paper[1] if paper else "",
                         "detector": rs[0]["detector"],
+                        "observation": rs[0]["observation"],
                     }
                 )
     return rows
@@ -188,7 +194,8 @@ def table1_md(rows: list[dict]) -> str:
     steps = {r["controller"]: r["timesteps"] for r in rows if r["timesteps"] and r["controller"]}
     notes = [
         "",
-        f"N = {rows[0]['stage']}, detector `{rows[0]['detector']}`. Final P_N/P_max after the last "
+        f"N = {rows[0]['stage']}, detector `{rows[0]['detector']}`, observation set of the agents "
+        f"`{_observation_of(rows)}`. Final P_N/P_max after the last "
         "step of each evaluation episode; mean ± std over training seeds (n) for the trained "
         "agents, over evaluation seeds (n) for the no-training controllers.",
         "Training steps per run: "
@@ -198,7 +205,45 @@ def table1_md(rows: list[dict]) -> str:
     return "\n".join(lines + notes) + "\n"
 
 
-# ------------------------------------------------------------------------------ figures
+def _observation_of(rows: list[dict]) -> str:
+    sets = {r["observation"] for r in rows if r["over"] == "training seeds"}
+    return ", ".join(sorted(sets)) or "none (no trained agent stored)"
+
+
+def table1_sets_md(tables: dict[str, list[dict]]) -> str:
+    """Table 1 cells of several run directories (label -> rows of :func:`table1_rows`) side by
+    side: one line per mode, environment and controller."""
+    labels = list(tables)
+    head = ["mode", "environment", "controller", "paper"]
+    head += [f"{lab} ({_observation_of(tables[lab])})" for lab in labels]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    keys = []
+    for rows in tables.values():
+        keys += [(r["mode"], r["environment"], r["controller"]) for r in rows]
+    order = {m: i for i, m in enumerate(("easy", "medium", "hard", "extreme"))}
+    keys = sorted(dict.fromkeys(keys), key=lambda k: (order.get(k[0], 9), k[1] != "training"))
+    by = {
+        lab: {(r["mode"], r["environment"], r["controller"]): r for r in tables[lab]}
+        for lab in labels
+    }
+    paper_stage = all(r["stage"] == 5 for rows in tables.values() for r in rows)
+    for mode, env, name in keys:
+        p = PAPER_TABLE1.get((mode, "train" if env == "training" else "test"), {}).get(name)
+        p = p if paper_stage else None
+        cells = [mode, env, name.upper(), f"{p[0]:.4f} ± {p[1]:.4f}" if p else "—"]
+        for lab in labels:
+            r = by[lab].get((mode, env, name))
+            cells.append(f"{r['mean']:.4f} ± {r['std']:.4f} (n={r['n']})" if r else "not run yet")
+        lines.append("| " + " | ".join(cells) + " |")
+    notes = [
+        "",
+        "Final P_N/P_max, mean ± std over training seeds (n) for the agents, over evaluation "
+        "seeds for the no-training controllers; each column is one run directory "
+        "(`ros2 run ops_gym_bridge report " + " ".join(labels) + " --out DIR`).",
+    ]
+    return "\n".join(lines + notes) + "\n"
+
+
 def _plt():
     import matplotlib
 
@@ -560,19 +605,39 @@ def write_report(root: Path, out: Path) -> list[Path]:
 
 def build_parser():
     p = cli_args.make_parser("report", "Table 1 and Figures 7-11, 17 from stored benchmark runs.")
-    p.add_argument("runs_dir", help="the benchmark's --out directory (or its runs/)")
+    p.add_argument(
+        "runs_dir",
+        nargs="+",
+        help="the benchmark's --out directory (or its runs/); several: each one's report in "
+        "OUT/<its name>/ and their Table 1 side by side in OUT/table1_sets.md",
+    )
     p.add_argument("--out", required=True, help="directory for the table and figures")
     return p
 
 
 def run(argv: list[str] | None = None) -> int:
     args = cli_args.parse_args(build_parser(), argv)
-    root = Path(args.runs_dir)
-    if not root.is_dir():
-        print(f"[report] error: {root} is not a directory", file=sys.stderr)
-        return 2
-    written = write_report(root, Path(args.out))
-    print((Path(args.out) / "table1.md").read_text(), flush=True)
+    roots = [Path(d) for d in args.runs_dir]
+    for root in roots:
+        if not root.is_dir():
+            print(f"[report] error: {root} is not a directory", file=sys.stderr)
+            return 2
+    out = Path(args.out)
+    if len(roots) == 1:
+        written = write_report(roots[0], out)
+        print((out / "table1.md").read_text(), flush=True)
+    else:
+        if len({r.resolve().name for r in roots}) < len(roots):
+            print("[report] error: the run directories need different names", file=sys.stderr)
+            return 2
+        written, tables = [], {}
+        for root in roots:
+            name = root.resolve().name
+            written += write_report(root, out / name)
+            tables[name] = table1_rows(load_runs(root))
+        (out / "table1_sets.md").write_text(table1_sets_md(tables))
+        written.append(out / "table1_sets.md")
+        print((out / "table1_sets.md").read_text(), flush=True)
     print(f"[report] wrote {', '.join(str(p) for p in written)}")
     return 0
 

@@ -64,3 +64,36 @@ def test_benchmark_trains_through_train(tmp_path, monkeypatch):
     # Resuming a finished run trains nothing more.
     bench_worker.train(spec, tmp_path)
     assert len(calls) == 1
+
+
+def _stored_run(root, observation, kind, name, final):
+    """A stored run as benchmark writes it (run.json + evaluation.json), final P_N given."""
+    rid = f"n5_easy_{name}" + ("_s0" if kind == "train" else "")
+    d = root / "runs" / rid
+    d.mkdir(parents=True)
+    spec = {"id": rid, "kind": kind, "stage": 5, "mode": "easy", "detector": "total",
+            "observation": observation, "seed": 0 if kind == "train" else None}  # fmt: skip
+    spec["algo" if kind == "train" else "controller"] = name
+    power = np.full((3, 11), final)
+    split = bench_worker.summarize([{"power": power}, {"power": power}])
+    ev = {"splits": {"train": split, "test": split}, "transfer": {}}
+    bench_worker.write_json(d / "run.json", {"spec": spec, "timesteps": 100})
+    bench_worker.write_json(d / "evaluation.json", ev)
+
+
+def test_report_puts_two_observation_sets_side_by_side(tmp_path):
+    from ops_gym_bridge import report
+
+    for label, observation, td3 in (("authors", "authors", 0.9), ("rig", "rig", 0.2)):
+        _stored_run(tmp_path / label, observation, "train", "td3", td3)
+        _stored_run(tmp_path / label, observation, "controller", "spgd", 0.5)
+    out = tmp_path / "out"
+    assert report.run([str(tmp_path / "authors"), str(tmp_path / "rig"), "--out", str(out)]) == 0
+    for label in ("authors", "rig"):
+        assert (out / label / "table1.csv").exists() and (out / label / "fig8_control.png").exists()
+        assert f"observation set of the agents `{label}`" in (out / label / "table1.md").read_text()
+    text = (out / "table1_sets.md").read_text()
+    assert "| authors (authors) | rig (rig) |" in text
+    td3_test = [ln for ln in text.splitlines() if ln.startswith("| easy | testing | TD3 |")]
+    assert td3_test == ["| easy | testing | TD3 | 0.9541 ± 0.0177 | 0.9000 ± 0.0000 (n=1) | "
+                        "0.2000 ± 0.0000 (n=1) |"]  # fmt: skip
