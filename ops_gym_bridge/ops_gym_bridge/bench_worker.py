@@ -8,8 +8,13 @@ Trained models are also evaluated on the other modes' testing environments (``tr
 paper's Figure 11) and, where asked (``traces``), one testing episode's output intensity traces are
 kept at a handful of steps (the paper's Figure 17), so the report needs no model.
 
-Storage. The run works in ``OUT/work/<id>/`` (model, replay buffer, training curve so far) and is
-saved there every ``save_every`` steps and when stopped; when it has finished training and
+Training is ``ros2 run ops_gym_bridge train``'s own steps (:func:`train_argv`: the paper's
+hyper-parameter set, one in-process env, the run's ``--observation`` and detector), so the table
+measures what a user's ``train`` does. Evaluation runs the agents on the episodes the controllers
+run (:func:`ops_gym_bridge.rollouts.policy_episodes`: same initial errors, same noise draws).
+
+Storage. The run works in ``OUT/work/<id>/`` (train's model directory: model, metadata, replay
+buffer, training curve so far), saved by train when stopped; when it has finished training and
 evaluation its small results (and the model) are moved in one ``os.replace`` to
 ``OUT/runs/<id>/``: a run is either absent there or complete. Files of a finished run::
 

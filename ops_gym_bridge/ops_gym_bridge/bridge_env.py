@@ -41,7 +41,9 @@ class RosOpsEnv(gym.Env):
     (None: ``ROS_DOMAIN_ID``), ``timeout_s`` (deadline of every wait), ``max_episode_steps``.
 
     ``info``: ``power`` (P_N/P_max), ``setpoints_fs`` (set-points now applied, as echoed by the
-    simulator), ``reward``, ``step_time_s`` (wall time of the round trip), ``retries`` (requests
+    simulator), ``delays_fs`` (with the authors' observation set only: the applied delays of the
+    simulator-only ``ops/delays_actual``), ``reward``, ``step_time_s`` (wall time of the round
+    trip), ``retries`` (requests
     sent again so far because an answer went missing for ``retry_after_s``; in lockstep a resent
     command makes the simulator step once more with the same set-points).
     """
@@ -95,7 +97,14 @@ class RosOpsEnv(gym.Env):
                 max_episode_steps=None,
             )
         self.client = LockstepClient(
-            self.stage, self.config.mode, namespace, domain_id, timeout_s, retry_after_s, node_name
+            self.stage,
+            self.config.mode,
+            namespace,
+            domain_id,
+            timeout_s,
+            retry_after_s,
+            node_name,
+            with_actual=self.obs_spec.needs_applied_delays,  # the authors' set: the oracle topic
         )
         self.timeout_s = self.client.timeout_s
         self.domain_id = self.client.domain_id
@@ -114,7 +123,7 @@ class RosOpsEnv(gym.Env):
         the step that produced it (None: a new episode)."""
         from ops_sim_ros.ros_interface import trace_from_msg
 
-        intensity, power_msg, reward_msg, delays_msg = msgs
+        intensity, power_msg, reward_msg, delays_msg, *actual_msg = msgs
         trace, samples = trace_from_msg(intensity)
         energies = pulse_energies_from_trace(trace, samples)
         if energies.shape[-1] != self.obs_spec.num_slots:
@@ -124,10 +133,12 @@ class RosOpsEnv(gym.Env):
             )
         setpoints = np.asarray(delays_msg.data, dtype=np.float64)
         power = float(power_msg.data)
+        # The authors' set: the applied delays of ops/delays_actual (a simulator-only oracle).
+        applied = np.asarray(actual_msg[0].data, dtype=np.float64) if actual_msg else None
         if action is None:
-            obs = self._observations.reset(energies, power, setpoints)
+            obs = self._observations.reset(energies, power, setpoints, applied_fs=applied)
         else:
-            obs = self._observations.step(energies, power, setpoints, action)
+            obs = self._observations.step(energies, power, setpoints, action, applied_fs=applied)
         self._setpoints = setpoints
         info = {
             "power": power,
@@ -135,6 +146,8 @@ class RosOpsEnv(gym.Env):
             "reward": float(reward_msg.data),
             "retries": self.client.retries,
         }
+        if applied is not None:
+            info["delays_fs"] = applied.copy()
         return obs, info
 
     # ------------------------------------------------------------------ gymnasium API

@@ -66,6 +66,7 @@ class LockstepClient:
         timeout_s: float = 5.0,
         retry_after_s: float | None = 1.0,
         node_name: str | None = None,
+        with_actual: bool = False,
     ) -> None:
         if not (timeout_s > 0):
             raise ValueError(f"timeout_s must be > 0 (got {timeout_s})")
@@ -81,6 +82,8 @@ class LockstepClient:
         self._late_possible = False  # an earlier wait timed out: old answers may still arrive
         self._timed_out = False  # a wait timed out since the last successful reset
         self._lockstep_checked = False
+        # with_actual: also wait for the simulator-only ops/delays_actual (the authors' set).
+        self._topics = _TOPICS + (("delays_actual",) if with_actual else ())
         self._start_ros(namespace, domain_id, node_name)
 
     @property
@@ -98,6 +101,7 @@ class LockstepClient:
             SERVICE_RESET,
             TOPIC_DELAY_CMD,
             TOPIC_DELAYS,
+            TOPIC_DELAYS_ACTUAL,
             TOPIC_INTENSITY,
             TOPIC_POWER,
             TOPIC_REWARD,
@@ -122,13 +126,15 @@ class LockstepClient:
             self._node = rclpy.create_node(name, namespace=namespace or "", context=self._context)
             self._executor = SingleThreadedExecutor(context=self._context)
             self._executor.add_node(self._node)
-            self._queues: dict[str, deque] = {t: deque() for t in _TOPICS}
+            self._queues: dict[str, deque] = {t: deque() for t in self._topics}
             topics = {
                 "intensity": (Float32MultiArray, TOPIC_INTENSITY, trace_from_msg),
                 "power": (Float32, TOPIC_POWER, power_from_msg),
                 "reward": (Float32, TOPIC_REWARD, power_from_msg),
                 "delays": (Float32MultiArray, TOPIC_DELAYS, delays_from_msg),
+                "delays_actual": (Float32MultiArray, TOPIC_DELAYS_ACTUAL, delays_from_msg),
             }
+            topics = {k: v for k, v in topics.items() if k in self._topics}
             guard = MessageGuard(self._node)
 
             def receive(msg, key, topic, check):
@@ -298,14 +304,14 @@ class LockstepClient:
                 if index[0] is None:
                     return False
             k = index[0]
-            return all(len(q[t]) > k for t in _TOPICS)
+            return all(len(q[t]) > k for t in self._topics)
 
         if not self._spin_until(find, deadline):
             self._late_possible = True
             self._timed_out = True
             if not final:
                 raise _AttemptTimeout
-            got = {t: len(q[t]) for t in _TOPICS}
+            got = {t: len(q[t]) for t in self._topics}
             if index[0] is not None:
                 raise SimulatorTimeoutError(
                     f"{what}: the simulator echoed the command on ops/delays but its other "
@@ -332,8 +338,8 @@ class LockstepClient:
                 f"bridge caused ({self._where}); it is free-running (start it with "
                 "-p lockstep:=true) or another node is commanding it"
             )
-        out = tuple(q[t][k] for t in _TOPICS)
-        for t in _TOPICS:
+        out = tuple(q[t][k] for t in self._topics)
+        for t in self._topics:
             for _ in range(k + 1):
                 q[t].popleft()
         return out

@@ -316,3 +316,30 @@ def test_memory_observation_over_the_bridge(sim3):
             )
     finally:
         env.close()
+
+
+def test_authors_observation_over_the_bridge(sim3):
+    """The authors' observation set through the bridge: its last block is the applied delays of
+    the simulator-only ops/delays_actual (set-point + hidden error), scaled as in-process."""
+    env = RosOpsEnv(
+        stage=3,
+        mode="easy",
+        namespace="/bridge",
+        timeout_s=10.0,
+        observation_options={"observation": "authors"},
+    )
+    try:
+        ref = OpsEnv(stage=3, mode="easy", observation_options={"observation": "authors"})
+        assert env.obs_spec == ref.obs_spec and env.observation_space == ref.observation_space
+        period = env.obs_spec.optical_period_fs
+        obs, info = env.reset()
+        for a in ([0.5, -0.25, 1.0], [-1.0, 0.0, 0.125]):
+            obs, _, _, _, info = env.step(np.asarray(a, np.float32))
+            assert obs in env.observation_space
+            applied = info["delays_fs"]
+            np.testing.assert_allclose(obs[-3:], applied / period / 3.0, rtol=1e-5, atol=1e-6)
+            # easy mode starts every line off by a hidden error: not the set-points
+            assert np.abs(applied - info["setpoints_fs"]).max() > 0.01 * period
+            assert obs[0] == pytest.approx(4.58 * info["power"] - 1.29, abs=1e-4)
+    finally:
+        env.close()
