@@ -258,6 +258,48 @@ def test_full_disk_keeps_the_bag_written_so_far(procs, tmp_path):
     assert 0 < info["message_count"] <= kept  # metadata describes only what is on disk
 
 
+def test_a_recorder_killed_outright_after_10_s_keeps_its_messages(procs, tmp_path, observer):
+    """SIGKILL (no chance to finalize): the flushed chunks hold >= 90 % of what the recorder was
+    sent, and `bag info` / `bag play` read them."""
+    from ops_bag import BagReader
+
+    start_sim(procs, stage=3, mode="easy", lockstep=False, seed=8)
+    observer.wait_count("power", 5)
+    bag = tmp_path / "killed"
+    rec = procs.ros2("bag", "record", "-o", str(bag), *OPS_TOPICS, name="record")
+    rec.wait_for(r"All requested topics are subscribed")
+    observer.wait_until(
+        lambda: all(observer.node.count_subscribers(t) >= 2 for t in OPS_TOPICS),
+        timeout=30,
+        what="the recorder's subscriptions in the graph",
+    )
+    t0 = time.monotonic()
+    observer.wait_until(lambda: time.monotonic() - t0 >= 10.0, timeout=20, what="10 s")
+    os.killpg(rec.popen.pid, signal.SIGKILL)
+    killed_at = time.monotonic()
+    rec.wait_exit(10)
+    wall_minus_mono = time.time_ns() - time.monotonic_ns()
+
+    reader = BagReader(bag)
+    stamps = [m.log_time_ns for m in reader.messages(["/ops/power"])]
+    assert len(stamps) > 100, (reader.problem, rec.output)
+    first = (stamps[0] - wall_minus_mono) / 1e9  # monotonic time of the first recorded reading
+    with observer.lock:
+        sent = [t for t, _, _ in observer.messages["power"] if first - 0.005 <= t <= killed_at]
+    # The recorder received what the observer did (same publisher, same host): it kept >= 90 %.
+    assert len(stamps) >= 0.9 * len(sent), (len(stamps), len(sent), reader.problem)
+    assert killed_at - first >= 8.0  # it had recorded for (nearly) the whole 10 s
+
+    info = run_ros2("bag", "info", str(bag))
+    assert info.returncode == 0, info.stderr
+    count = int(re.search(r"^Messages:\s+(\d+)$", info.stdout, re.M).group(1))
+    assert count == reader.message_count
+    play = run_ros2("bag", "play", str(bag), "--rate", "20")
+    assert play.returncode == 0, play.stderr
+    assert f"Played {count} messages" in play.stdout
+    assert_no_traceback(info.stderr + play.stderr)
+
+
 # --- episodes from Python -------------------------------------------------------------------
 
 

@@ -75,10 +75,10 @@ def add_verbs(verbs):
     p.add_argument(
         "--flush-period",
         type=_positive_float,
-        default=1.0,
+        default=0.25,
         metavar="SECONDS",
         help="Write buffered messages to disk at least this often; a recorder killed "
-        "outright loses at most this much (default: 1).",
+        "outright loses at most this much (default: 0.25).",
     )
     p.add_argument("--use-sim-time", action="store_true", help="Accepted; ignored")
     p.set_defaults(_main=main_record)
@@ -252,6 +252,11 @@ def main_record(args):
                         )
                     next_discovery = now + DISCOVERY_PERIOD_S
                 cli.spin_once(graph.SLICE)
+                if not failure:
+                    try:  # also while no message comes: what was received reaches the disk
+                        writer.flush_if_due()
+                    except BagWriteError as exc:
+                        failure.append(exc)
                 if failure:
                     break
         except Interrupted:
