@@ -98,6 +98,15 @@ def _cluster_id_call(host: str, port: int, token: str | None, timeout: float):
     return None
 
 
+def _use_token_auth() -> None:
+    """``RAY_AUTH_MODE=token`` for this process and its children, as Ray itself does for a
+    cluster it finds by itself (Ray reads its configuration once: read it again)."""
+    os.environ["RAY_AUTH_MODE"] = "token"
+    from ray._raylet import Config
+
+    Config.initialize("")
+
+
 def check_address(address: str, timeout: float = 5.0) -> None:
     """Raise :class:`RayAddressError` unless the Ray cluster at ``address`` answers and accepts
     this machine. Where it wants the token this machine has, ``RAY_AUTH_MODE=token`` is set for
@@ -116,7 +125,7 @@ def check_address(address: str, timeout: float = 5.0) -> None:
         send = token  # Ray 2.60 turns token auth on where this machine has a token: try it
         code = _cluster_id_call(host, port, send, timeout)
         if code is None:
-            os.environ["RAY_AUTH_MODE"] = "token"
+            _use_token_auth()
     if code is None:
         return
     if code != grpc.StatusCode.UNAUTHENTICATED:

@@ -1,0 +1,118 @@
+"""The benchmark on a real two-node Ray cluster: the head on host A, a worker node on host B
+(two network namespaces on one link, test/ray_cluster.py), token authentication on, nothing of the
+project on B. A subset of the smoke profile (6 of its 17 runs; the whole profile is
+scripts/bench_ray_cluster.py, docs/cluster.md) runs on both nodes; node B is killed while a
+training run is on it: that run is retried on A and everything is stored; the same command again
+has nothing left to do. Needs root and `ip`; skipped with the reason otherwise."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import time
+
+import pytest
+from ray_cluster import RayCluster
+from ros_testing import NetnsUnavailable, TwoHosts, assert_no_traceback, netns_unavailable_reason
+
+pytest.importorskip("ray")
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(600)]
+
+SUBSET = ["--controllers", "spgd", "--algos", "ppo", "td3", "--modes", "easy", "hard"]
+SUBSET += ["--extra-stages"]
+RUNS = {f"n2_{m}_{r}" for m in ("easy", "hard") for r in ("spgd", "ppo_s0", "td3_s0")}
+ON_B = re.compile(r"\[benchmark\] (n2_\w+) running on node 10\.231\.0\.2 ")
+
+
+def wait_for_victim(bench, timeout: float) -> str:
+    """A training run in progress on B, once another run has finished there."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        text = bench.output
+        on_b = ON_B.findall(text)
+        done = set(re.findall(r"done (n2_\w+): final", text))
+        live = [r for r in on_b if r not in done and r.endswith("_s0")]
+        if live and any(r in done for r in on_b):
+            return live[-1]
+        if bench.popen.poll() is not None:
+            break
+        time.sleep(0.2)
+    raise AssertionError(f"no run finished on B and another in progress there:\n{bench.output}")
+
+
+@pytest.fixture
+def cluster(hosts, procs, tmp_path):
+    with RayCluster(hosts, procs, tmp_path / "cluster") as made:
+        yield made
+        hosts.close()  # stops every Ray process before its folders go
+
+
+@pytest.fixture
+def hosts():
+    reason = netns_unavailable_reason()
+    if reason:
+        pytest.skip(f"the Ray cluster test needs network namespaces: {reason}")
+    try:
+        pair = TwoHosts()
+    except NetnsUnavailable as exc:
+        pytest.skip(f"the Ray cluster test: cannot make network namespaces here: {exc}")
+    with pair:
+        yield pair
+
+
+def bench_cmd(cluster, out) -> list[str]:
+    return [
+        sys.executable, "-m", "ops_gym_bridge.benchmark", "--profile", "smoke", "--out", str(out),
+        "--ray-address", cluster.address, "--retry-delay", "1", "--status-every", "10", *SUBSET,
+    ]  # fmt: skip
+
+
+def test_smoke_runs_on_both_nodes_and_a_killed_node_costs_a_retry(cluster, hosts, procs, tmp_path):
+    cluster.start_head()
+    cluster.start_worker()
+    assert cluster.project_importable_on_worker() == [False, False, False]
+    out = tmp_path / "out"
+    bench = hosts.a.start(
+        procs, bench_cmd(cluster, out), name="benchmark", env=cluster.driver_env()
+    )
+    bench.wait_for(r"Ray cluster: 2 node\(s\), 2 CPU\(s\)", timeout=120)
+    victim = wait_for_victim(bench, timeout=400)
+    assert cluster.kill_worker_node() > 0
+    assert bench.wait_exit(400) == 0, bench.output
+    text = bench.output
+    assert_no_traceback(text)
+    # Ray's own error, with its type, in the output and in the run's log; then a retry on A.
+    error = re.search(rf"run {victim}: Ray error on node 10\.231\.0\.2 \(\w+\): (\w+Error)", text)
+    assert error, text
+    assert f"run {victim} failed (exit 1); retry 1/3" in text
+    log = (out / "logs" / f"{victim}.log").read_text()
+    assert error.group(1) in log
+    attempts = re.findall(r"attempt on node (10\.231\.0\.\d)", log)
+    assert attempts[0] == "10.231.0.2" and attempts[-1] == "10.231.0.1", log
+    assert "Ray cluster: 1 node(s), 1 CPU(s) (was 2)" in text
+    # Everything stored, by the driver, from both nodes.
+    assert f"finished: {len(RUNS)}/{len(RUNS)} runs stored" in text
+    stored = {p.parent.name for p in out.glob("runs/*/run.json")}
+    assert stored == RUNS
+    nodes = set()
+    for rid in stored:
+        rec = json.loads((out / "runs" / rid / "run.json").read_text())
+        assert rec["spec"]["id"] == rid
+        nodes.add(
+            re.findall(r"attempt on node (\S+)", (out / "logs" / f"{rid}.log").read_text())[-1]
+        )
+    assert nodes == {"10.231.0.1", "10.231.0.2"}
+    assert not (out / "work").exists() or not list((out / "work").iterdir())
+    # The same command again: nothing left to do.
+    again = subprocess.run(
+        hosts.a.command(bench_cmd(cluster, out)),
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env=cluster.driver_env(),
+    )
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert f"{len(RUNS)} already stored" in again.stdout and "start " not in again.stdout
