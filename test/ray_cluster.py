@@ -93,13 +93,19 @@ class RayCluster:
         self.head.wait_for(r"Ray runtime started", timeout=timeout)
         return self.head
 
-    def start_worker(self, timeout: float = 120.0):
+    def start_worker(self, timeout: float = 120.0, without: str | None = None):
+        """Start the worker node; ``without``: a third-party package its Python then lacks
+        (a package of that name that fails to import comes first on its path)."""
+        env = self.worker_env()
+        if without:
+            stub = self.root / "stubs" / without
+            stub.mkdir(parents=True, exist_ok=True)
+            (stub / "__init__.py").write_text(
+                f"raise ImportError('{without} is not installed on this node')\n"
+            )
+            env["PYTHONPATH"] = str(stub.parent)
         self.worker = self._start(
-            self.hosts.b,
-            [f"--address={self.address}"],
-            "ray_worker",
-            self.worker_env(),
-            cwd=self.worker_cwd,
+            self.hosts.b, [f"--address={self.address}"], "ray_worker", env, cwd=self.worker_cwd
         )
         self.worker.wait_for(r"Ray runtime started", timeout=timeout)
         return self.worker

@@ -116,3 +116,28 @@ def test_smoke_runs_on_both_nodes_and_a_killed_node_costs_a_retry(cluster, hosts
     )
     assert again.returncode == 0, again.stdout + again.stderr
     assert f"{len(RUNS)} already stored" in again.stdout and "start " not in again.stdout
+
+
+def test_a_node_that_cannot_import_is_reported_and_avoided(cluster, hosts, procs, tmp_path):
+    """Node B lacks gymnasium: the task cannot even import there. Ray's error reaches the
+    output and the run's log, and the retry goes to A."""
+    cluster.start_head()
+    cluster.start_worker(without="gymnasium")
+    out = tmp_path / "out"
+    cmd = bench_cmd(cluster, out)
+    cmd[cmd.index("--algos") :] = ["--algos", "ppo", "--modes", "easy", "--extra-stages"]
+    bench = hosts.a.start(procs, cmd, name="benchmark", env=cluster.driver_env())
+    assert bench.wait_exit(300) == 0, bench.output
+    text = bench.output
+    failed = re.findall(r"run (n2_\w+): Ray error on node 10\.231\.0\.2 \(\w+\): (\S+): (.*)", text)
+    assert failed, text
+    for rid, kind, message in failed:
+        assert "Error" in kind and "gymnasium is not installed on this node" in message, text
+        log = (out / "logs" / f"{rid}.log").read_text()
+        assert kind in log and "gymnasium is not installed on this node" in log
+        assert log.rstrip().splitlines()[-1].startswith(f"[run {rid}] done"), log
+        assert re.findall(r"attempt on node (\S+)", log)[-1] == "10.231.0.1", log
+    assert {p.parent.name for p in out.glob("runs/*/run.json")} == {
+        "n2_easy_spgd",
+        "n2_easy_ppo_s0",
+    }
