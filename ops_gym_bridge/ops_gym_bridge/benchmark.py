@@ -153,7 +153,8 @@ def plan(args) -> list[dict[str, Any]]:
             "seed": seed,
             "timesteps": int(steps),
             "hyperparams": list(prof["hyperparams"].get(algo, [])) + list(args.hyperparams),
-            "transfer_modes": list(modes) if st == stage else [],
+            # Figure 11 needs every mode of the profile, also when --modes runs a few of them.
+            "transfer_modes": list(dict.fromkeys([*prof["modes"], *modes])) if st == stage else [],
             "traces": traces,
         }
 
