@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Table 1 with both observation sets (issue 19): the quick profile with the authors' detector,
 # agents on the authors' observation (docs/results/n5_quick_authors) and on the rig's
-# (docs/results/n5_quick_rig), one run at a time, niced. TD3 then SAC at N = 5, seed 0, every
-# mode first (authors, then rig), then the rest of each profile. Every command resumes: run this
+# (docs/results/n5_quick_rig), one run at a time, niced. TD3 then SAC at N = 5, seed 0, mode by
+# mode with both sets (authors, then rig), then the rest of each profile. Every command resumes: run this
 # script again to continue (stored runs are skipped, interrupted ones continue from their save).
 # It runs a frozen copy of the commit it starts from (runs/frozen-<commit>, first on PYTHONPATH),
 # so that edits of the working tree cannot reach a run in progress.
@@ -19,9 +19,13 @@ bench() { nice -n 15 python -m ops_gym_bridge.benchmark --profile quick --detect
     --jobs 1 --status-every 600 "$@"; }
 authors=(--observation authors --out docs/results/n5_quick_authors)
 rig=(--observation rig --out docs/results/n5_quick_rig)
-bench "${authors[@]}" --algos td3 --seeds 0 --extra-stages --controllers
-bench "${rig[@]}" --algos td3 --seeds 0 --extra-stages --controllers
-bench "${authors[@]}" --algos td3 sac --seeds 0 --extra-stages --controllers
-bench "${rig[@]}" --algos td3 sac --seeds 0 --extra-stages --controllers
+for algo in td3 sac; do  # seed 0, mode by mode, both sets: a side-by-side cell at a time
+    for mode in easy medium hard; do
+        for set in authors rig; do
+            [ "$set" = authors ] && out=("${authors[@]}") || out=("${rig[@]}")
+            bench "${out[@]}" --algos "$algo" --modes "$mode" --seeds 0 --extra-stages --controllers
+        done
+    done
+done
 bench "${authors[@]}"
 bench "${rig[@]}"
