@@ -15,6 +15,8 @@ else
   esac
   # shellcheck disable=SC1091
   source "$_ops_root/install/setup.bash"
+  # Fast DDS repairs a lost message within 50 ms instead of 3 s (config/fastdds_profile.xml).
+  export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_ops_root/config/fastdds_profile.xml}"
   # Tab completion of `ros2` (argcomplete) in interactive bash.
   if [ -n "${BASH_VERSION:-}" ] && [ -x "$VIRTUAL_ENV/bin/register-python-argcomplete" ]; then
     eval "$("$VIRTUAL_ENV/bin/register-python-argcomplete" ros2)"

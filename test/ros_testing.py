@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import os
 import re
 import shutil
@@ -390,3 +391,69 @@ class TwoHosts:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class RelayedHosts(TwoHosts):
+    """Hosts ``a`` and ``b`` as in :class:`TwoHosts`, but joined through a third namespace in
+    which scripts/fault_relay.py forwards every frame, so the link can lose, delay and cut them
+    (``set(loss=0.05, delay_ms=20, down=False)``; this kernel has no netem). The relay's counts
+    are in ``self.relay.output``."""
+
+    def __init__(self, tmp_path: Path, seed: int = 0):
+        reason = netns_unavailable_reason()
+        if reason:
+            raise NetnsUnavailable(reason)
+        tag = f"{os.getpid()}x{next(_NETNS_COUNT)}"
+        self._made: list[str] = []
+        self.a = Host(f"ops_{tag}_a", f"o{tag}a", "10.231.0.1")
+        self.b = Host(f"ops_{tag}_b", f"o{tag}b", "10.231.0.2")
+        self.r = Host(f"ops_{tag}_r", "", "")
+        self.control = Path(tmp_path) / f"relay_{tag}.json"
+        self.relay: Process | None = None
+        try:
+            for host in (self.a, self.b, self.r):
+                self._run("netns", "add", host.netns)
+                self._made.append(host.netns)
+            self._run("-n", self.r.netns, "link", "set", "lo", "up")
+            ports = []
+            for host in (self.a, self.b):
+                port = host.device[:-1] + "r" + host.device[-1]  # its end in the relay
+                self._run("link", "add", host.device, "type", "veth", "peer", "name", port)
+                self._run("link", "set", host.device, "netns", host.netns)
+                self._run("link", "set", port, "netns", self.r.netns)
+                self._run("-n", self.r.netns, "link", "set", port, "promisc", "on", "up")
+                self._run("-n", host.netns, "addr", "add", f"{host.address}/24", "dev", host.device)
+                self._run("-n", host.netns, "link", "set", "lo", "up")
+                self._run("-n", host.netns, "link", "set", host.device, "up")
+                self._run("-n", host.netns, "route", "add", "224.0.0.0/4", "dev", host.device)
+                ports.append(port)
+            self.set()
+            log = Path(tmp_path) / f"relay_{tag}.log"
+            self.relay = Process(
+                self.r.command(
+                    [
+                        PYTHON,
+                        REPO / "scripts" / "fault_relay.py",
+                        *ports,
+                        *("--control", self.control, "--seed", seed, "--report-s", 5),
+                    ]
+                ),
+                log,
+                env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            )
+            self.relay.wait_for(r"\[relay\] loss", timeout=30)
+        except BaseException:
+            self.close()
+            raise
+
+    def set(self, loss: float = 0.0, delay_ms: float = 0.0, down: bool = False) -> None:
+        """New link conditions (the relay picks them up within 0.1 s)."""
+        tmp = self.control.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"loss": loss, "delay_ms": delay_ms, "down": down}))
+        tmp.replace(self.control)
+
+    def close(self) -> None:
+        if self.relay is not None:
+            self.relay.stop(timeout=5)
+            self.relay = None
+        super().close()

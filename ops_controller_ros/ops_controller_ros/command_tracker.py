@@ -4,6 +4,13 @@ The simulator publishes a step's set-points on ``ops/delays`` before that step's
 controller sends a command, then uses a reading only while the latest set-points it has seen equal
 that command: such a reading cannot predate the command. This class holds that bookkeeping for
 every controller node (no rclpy, so it is tested on its own).
+
+Re-sending: a command whose set-points have not come back is sent again after a time measured
+from the link itself, as TCP does: the smoothed round trip (command sent -> its set-points seen)
+plus four times its mean deviation, at least ``min_resend_s`` and at most ``timeout_s``. On a
+100 Hz simulator that is a few sample periods, so a lost command or reading costs tens of
+milliseconds instead of ``timeout_s``; a re-sent command's answer is no round-trip sample (it
+could answer either copy). Until the first sample, ``timeout_s`` applies.
 """
 
 from __future__ import annotations
@@ -15,33 +22,67 @@ MATCH_TOLERANCE_FS = 1e-3
 
 
 class CommandTracker:
-    def __init__(self, timeout_s: float, tolerance_fs: float = MATCH_TOLERANCE_FS):
+    def __init__(
+        self,
+        timeout_s: float,
+        tolerance_fs: float = MATCH_TOLERANCE_FS,
+        min_resend_s: float = 0.02,
+    ):
         self.timeout_s = float(timeout_s)
         self.tolerance_fs = float(tolerance_fs)
+        self.min_resend_s = float(min_resend_s)
         self.pending: np.ndarray | None = None  # the command awaiting its reading
         self.sent_at = float("-inf")
         self.matched = False  # the latest set-points equal the pending command
+        self.rtt_s: float | None = None  # smoothed round trip
+        self.rtt_dev_s = 0.0  # its smoothed mean deviation
+        self.resends = 0
+        self._resent = False  # the pending command was sent more than once
 
     def sent(self, command, now: float) -> np.ndarray:
         """Record a command just published; returns it as a float array."""
-        self.pending = np.asarray(command, dtype=np.float64).copy()
+        command = np.asarray(command, dtype=np.float64).copy()
+        again = self.pending is not None and self._same(command, self.pending)
+        self._resent = again
+        self.resends += again
+        self.pending = command
         self.matched = False
         self.sent_at = now
         return self.pending
 
-    def on_setpoints(self, setpoints, accept_without_command: bool = False) -> bool:
+    def _same(self, a: np.ndarray, b: np.ndarray) -> bool:
+        return a.shape == b.shape and bool(np.allclose(a, b, rtol=0.0, atol=self.tolerance_fs))
+
+    def resend_after(self) -> float:
+        """How long a command waits for its set-points before it is sent again."""
+        if self.rtt_s is None:
+            return self.timeout_s
+        rto = self.rtt_s + 4.0 * self.rtt_dev_s
+        return min(self.timeout_s, max(self.min_resend_s, rto))
+
+    def _sample(self, rtt: float) -> None:
+        if self.rtt_s is None:
+            self.rtt_s, self.rtt_dev_s = rtt, rtt / 2.0
+        else:
+            self.rtt_dev_s += 0.25 * (abs(rtt - self.rtt_s) - self.rtt_dev_s)
+            self.rtt_s += 0.125 * (rtt - self.rtt_s)
+
+    def on_setpoints(
+        self, setpoints, accept_without_command: bool = False, now: float | None = None
+    ) -> bool:
         """The set-points of a new step; True when readings that follow belong to our command.
 
         ``accept_without_command``: with no command pending, readings count too (a runner that
-        starts on a free-running simulator takes its first observation as it comes).
+        starts on a free-running simulator takes its first observation as it comes). ``now``
+        (monotonic s): the first match of a command sent once is a round-trip sample.
         """
         if self.pending is None:
             self.matched = accept_without_command
         else:
-            sp = np.asarray(setpoints, dtype=np.float64)
-            self.matched = sp.shape == self.pending.shape and bool(
-                np.allclose(sp, self.pending, rtol=0.0, atol=self.tolerance_fs)
-            )
+            was = self.matched
+            self.matched = self._same(np.asarray(setpoints, dtype=np.float64), self.pending)
+            if self.matched and not was and now is not None and not self._resent:
+                self._sample(now - self.sent_at)
         return self.matched
 
     def answered(self) -> None:
@@ -50,5 +91,5 @@ class CommandTracker:
         self.matched = False
 
     def overdue(self, now: float) -> bool:
-        """A command has waited longer than the timeout for its reading."""
-        return self.pending is not None and now - self.sent_at > self.timeout_s
+        """A command has waited longer than :meth:`resend_after` for its reading."""
+        return self.pending is not None and now - self.sent_at > self.resend_after()

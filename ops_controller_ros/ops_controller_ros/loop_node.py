@@ -25,6 +25,7 @@ import numpy as np
 from ops_sim_ros.node_params import ParamSpec, declare_all
 from ops_sim_ros.observation import pulse_energies_from_trace
 from ops_sim_ros.ros_interface import (
+    QOS_READINGS,
     QOS_RELIABLE,
     QOS_STATE,
     TOPIC_DELAY_CMD,
@@ -84,14 +85,19 @@ class ControllerLoopNode(Node):
         self._next_allowed = 0.0
         self._last_reading_at = float("-inf")
 
-        # Delays first: when several are ready the executor takes them in creation order.
+        # Delays first: when several are ready the executor takes them in creation order. The
+        # latched subscription gives the set-points at start (a lockstep simulator publishes
+        # only when commanded); the best-effort ones carry the running loop: a lost message
+        # is not waited for (issue 21: seconds per loss on a lossy link).
         self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
+        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_READINGS)
         self.create_subscription(
-            Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_RELIABLE
+            Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS
         )
-        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
+        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
-        self.create_timer(0.05, self._watchdog)
+        # Re-sends are due a few sample periods after a command (CommandTracker.resend_after).
+        self.create_timer(0.01, self._watchdog)
         self.create_timer(self._log_period, self._log_progress)
         self.get_logger().info(
             f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)}"
@@ -155,7 +161,7 @@ class ControllerLoopNode(Node):
         if self.ctrl is None or self.ctrl.stage != delays.size:
             self._start_if_found()
             return
-        self._commands.on_setpoints(delays)
+        self._commands.on_setpoints(delays, now=time.monotonic())
 
     def _on_intensity(self, msg: Float32MultiArray):
         trace = self._guard.take(TOPIC_INTENSITY, trace_from_msg, msg)
@@ -196,10 +202,12 @@ class ControllerLoopNode(Node):
                 self._next_allowed = now + self._min_period
                 self._send()
         elif self._commands.overdue(now):
-            self.get_logger().warning(
-                "no reading for the last command: re-sending (simulator slow or restarted?)",
-                throttle_duration_sec=5.0,
-            )
+            if now - self._last_reading_at > self._commands.timeout_s:
+                # Longer than timeout_s: more than a lost message (quick re-sends are silent).
+                self.get_logger().warning(
+                    "no reading for the last command: re-sending (simulator slow or restarted?)",
+                    throttle_duration_sec=5.0,
+                )
             self._send()
 
     def _log_progress(self):

@@ -37,3 +37,31 @@ def test_overdue_after_the_timeout_only_while_pending():
     assert t.overdue(now=10.6)
     t.answered()
     assert not t.overdue(now=20.0)
+
+
+def test_resend_after_follows_the_measured_round_trip():
+    t = CommandTracker(timeout_s=1.0, min_resend_s=0.02)
+    assert t.resend_after() == 1.0  # nothing measured yet
+    for k in range(50):  # round trips of 10 ms
+        t.sent([float(k)], now=k)
+        assert t.on_setpoints([float(k)], now=k + 0.010)
+        t.answered()
+    assert 0.02 <= t.resend_after() < 0.05  # a few round trips, not the 1 s timeout
+    t.sent([99.0], now=100.0)
+    assert not t.overdue(now=100.0 + 0.9 * t.resend_after())
+    assert t.overdue(now=100.0 + 1.1 * t.resend_after())
+    # A slow link raises it (bounded by timeout_s) ...
+    for k in range(50):
+        t.sent([float(k)], now=200 + k)
+        assert t.on_setpoints([float(k)], now=200 + k + 0.3)
+        t.answered()
+    assert 0.3 < t.resend_after() <= 1.0
+
+
+def test_a_resent_command_gives_no_round_trip_sample():
+    t = CommandTracker(timeout_s=1.0)
+    t.sent([1.0], now=0.0)
+    t.sent([1.0], now=1.0)  # the same command again: a re-send
+    assert t.resends == 1
+    t.on_setpoints([1.0], now=1.001)
+    assert t.rtt_s is None  # ambiguous: it may answer the first copy

@@ -42,6 +42,11 @@ QOS_RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 #: A subscriber that wants every reading although its own callbacks can be slow (the monitor draws
 #: a frame in ~0.1 s while 100 readings/s arrive): ten seconds of readings queue up.
 QOS_EVERY_READING = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+#: A controller's view of a free-running simulator's outputs: best effort, the latest few. A lost
+#: reading is not repaired (the next step's comes one sample period later, where a reliable
+#: reader would hold every later one until the lost one is sent again), and under CPU load stale
+#: readings are dropped instead of queued. Reliable publishers match it.
+QOS_READINGS = QoSProfile(depth=2, reliability=ReliabilityPolicy.BEST_EFFORT)
 #: ``ops/delays`` is state: latched (transient local, last value only), so a controller that
 #: starts later - even against a lockstep simulator that publishes only when commanded - learns
 #: the current set-points at once. Volatile subscribers match it too and see only new values.

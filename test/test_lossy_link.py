@@ -1,0 +1,105 @@
+"""The loop over a lossy link: the simulator on host A, SPGD on host B, joined through
+scripts/fault_relay.py (ros_testing.RelayedHosts), which drops frames and cuts the link.
+
+With 20 % of the frames lost each way the controller keeps at least half its clean-link pace (a
+lost command or reading is re-sent after a few measured round trips, not after ``timeout_s``: at
+1 s per loss it managed a few iterations per second) and holds its lock; after a 3 s outage it
+steps again within seconds, and nothing exits.
+The heavy schedules (5 / 20 % loss for minutes, 30 s outages, load, three controllers) are in
+scripts/bench_faults.py. Needs root and `ip`; skipped with the reason otherwise.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+
+import pytest
+from ros_testing import (
+    NetnsUnavailable,
+    RelayedHosts,
+    assert_no_traceback,
+    executable,
+    netns_unavailable_reason,
+)
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+
+
+@pytest.fixture(scope="module")
+def hosts(tmp_path_factory):
+    reason = netns_unavailable_reason()
+    if reason:
+        pytest.skip(f"the lossy-link test needs network namespaces: {reason}")
+    try:
+        relayed = RelayedHosts(tmp_path_factory.mktemp("relay"))
+    except NetnsUnavailable as exc:
+        pytest.skip(f"the lossy-link test: cannot make network namespaces here: {exc}")
+    with relayed:
+        yield relayed
+
+
+def _progress(proc) -> list[tuple[int, float]]:
+    """(iteration, P_N/P_max) of every progress line of the SPGD node."""
+    return [
+        (int(n), float(p))
+        for n, p in re.findall(r"iteration (\d+)[^:\n]*: P_N/P_max = ([\d.]+)", proc.output)
+    ]
+
+
+def _pace(lines) -> float:
+    """Iterations per progress line (one a second)."""
+    return (lines[-1][0] - lines[0][0]) / (len(lines) - 1)
+
+
+def _wait(condition, timeout: float, what: str, *procs):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        for p in procs:
+            assert p.popen.poll() is None, f"{' '.join(p.args)} exited:\n{p.output}"
+        assert time.monotonic() < deadline, f"timed out waiting for {what}:\n" + "\n".join(
+            p.output[-3000:] for p in procs
+        )
+        time.sleep(0.1)
+
+
+def test_spgd_keeps_its_lock_through_loss_and_comes_back_after_an_outage(hosts, procs):
+    env = hosts.env()
+    sim_args = [*executable("ops_sim_ros", "sim"), "--ros-args"]
+    for p in ("stage:=3", "mode:=easy", "seed:=7", "rate_hz:=100.0"):
+        sim_args += ["-p", p]
+    sim = hosts.a.start(procs, sim_args, name="sim", env=env)
+    sim.wait_for("stage=3 mode=easy", timeout=60)
+    args = [*executable("ops_controller_ros", "spgd"), "--ros-args", "-p", "seed:=7"]
+    spgd = hosts.b.start(procs, args, name="spgd", env=env)
+    _wait(lambda: sum(p >= 0.9 for _, p in _progress(spgd)) >= 5, 90, "a lock", spgd, sim)
+    start = len(_progress(spgd))
+    _wait(lambda: len(_progress(spgd)) >= start + 6, 30, "clean progress", spgd, sim)
+    clean = _pace(_progress(spgd)[start:])
+
+    hosts.set(loss=0.20)
+    hosts.relay.wait_for(r"loss 0\.200 delay 0\.0 ms up", timeout=10)
+    start = len(_progress(spgd))
+    _wait(lambda: len(_progress(spgd)) >= start + 10, 30, "10 s of progress", spgd, sim)
+    lines = _progress(spgd)[start:]
+    held = sum(p >= 0.9 for _, p in lines) / len(lines)
+    assert _pace(lines) >= 0.5 * clean, (_pace(lines), clean, spgd.output[-3000:])
+    assert held >= 0.7, (held, lines)
+
+    hosts.set(down=True)
+    hosts.relay.wait_for("DOWN", timeout=10)
+    time.sleep(3.0)  # the outage itself (its length is the test's condition)
+    hosts.set()
+    back = time.monotonic()
+    seen = _progress(spgd)[-1][0]
+    _wait(
+        lambda: any(n >= seen + 20 for n, _ in _progress(spgd)),
+        20,
+        "readings after the link came back",
+        spgd,
+        sim,
+    )
+    assert time.monotonic() - back < 10.0
+    for proc in (sim, spgd):
+        assert proc.popen.poll() is None
+        assert_no_traceback(proc.output)
