@@ -19,8 +19,9 @@ readings; with the normalization a step has the same size at any power, and at t
 Restarts (``recovery="restart"``; ``"none"`` never restarts): SPGD is a
 local method, and from the initial errors of medium and hard modes it often climbs a side peak of
 the periodic landscape (P_N/P_max ~ 0.33 at N = 3, every stage half a cycle off) and stays there; no
-single-stage move leads off such a peak. When P_N/P_max is still below ``restart_below`` after
-``restart_after`` iterations (since the start or the last restart), the controller walks every
+single-stage move leads off such a peak. When P_N/P_max is below ``restart_below`` and has been flat
+(within ``restart_flat`` of its level) over the last ``restart_after`` iterations since the start
+or the last restart -- a plateau, not a slow climb -- the controller walks every
 set-point to a random offset within +- ``restart_range_fs`` / 2 (one optical cycle wide: every
 delay's landscape repeats with the optical period), in steps of ``restart_step_fs`` (below the
 actuator's largest step; readings on the way are not used), and SPGD starts again there. The best
@@ -55,7 +56,8 @@ class SpgdParams:
     normalize_floor: float = 0.02  # ... by at least this power
     recovery: str = "restart"  # "restart": leave a side peak; "none": the paper's SPGD-PID
     restart_below: float = 0.9  # restart when P_N/P_max is still below this ...
-    restart_after: int = 30  # ... this many iterations after the start or the last restart
+    restart_after: int = 10  # ... and flat over this many iterations since the (re)start ...
+    restart_flat: float = 0.1  # ... within this fraction of its level (a plateau, not a climb)
     restart_range_fs: float = 3.6  # width of a restart's random offset (a 1030 nm cycle: 3.44 fs)
     restart_step_fs: float = 0.06  # set-point change per reading on the way to it
 
@@ -70,6 +72,7 @@ class SpgdParams:
             ("recovery", self.recovery in RECOVERIES, f"one of {', '.join(RECOVERIES)}"),
             ("restart_below", 0.0 <= self.restart_below <= 1.0, "in [0, 1]"),
             ("restart_after", self.restart_after >= 1, ">= 1"),
+            ("restart_flat", 0.0 <= self.restart_flat <= 1.0, "in [0, 1]"),
             ("restart_range_fs", self.restart_range_fs >= 0, ">= 0"),
             ("restart_step_fs", self.restart_step_fs > 0, "> 0"),
         )
@@ -112,6 +115,7 @@ class SpgdPid:
         self.last_power = float("nan")
         self._walk = []  # set-points still to visit on the way to a restart point
         self._since_restart = 0
+        self._recent = []  # P_N/P_max of each iteration since the last (re)start
         self._best = (-np.inf, u.copy())  # (plateau power, its set-points)
 
     # ------------------------------------------------------------------ restarts
@@ -135,6 +139,7 @@ class SpgdPid:
         self._last_error = np.zeros(self.stage)
         self._phase = 0
         self._since_restart = 0
+        self._recent = []
         self.restarts += 1
 
     def command(self) -> np.ndarray:
@@ -175,9 +180,19 @@ class SpgdPid:
         self._phase = 0
         self.iterations += 1
         self._since_restart += 1
+        self._recent.append(self.last_power)
         if (
             p.recovery == "restart"
             and self._since_restart >= p.restart_after
             and self.last_power < p.restart_below
+            and _flat(self._recent, p.restart_after, p.restart_flat)
         ):
             self._restart()  # stalled on a side peak: look elsewhere
+
+
+def _flat(powers: list[float], window: int, tolerance: float) -> bool:
+    """True when the last ``window`` powers spread by less than ``tolerance`` times their top
+    (a plateau, not a climb)."""
+    last = powers[-window:]
+    top = max(last)
+    return top - min(last) <= tolerance * top
