@@ -1,0 +1,225 @@
+#!/usr/bin/env python3
+"""Each controller through a fault schedule on a lossy link: lock fraction per condition.
+
+The simulator runs on host A, the controller on host B; the hosts are two network namespaces
+joined through scripts/fault_relay.py (test/ros_testing.RelayedHosts), which drops frames and
+cuts the link as the schedule says (this kernel has no netem). A recorder on host A (next to the
+simulator, so it loses nothing) notes every ``ops/power`` reading with its time. After the
+controller has settled on a clean link, each phase lasts ``--phase-s`` seconds:
+
+- clean, 5 % and 20 % frame loss each way;
+- an outage of 1 s and one of 30 s (the link drops everything), then ``--phase-s`` seconds on a
+  clean link: the lock fraction of that window and the time from the link's return to the first
+  reading >= 0.95 (``recovery``);
+- CPU load: ``--load`` busy processes on the machine (2 cores here), clean link.
+
+The lock fraction is the share of the simulator's readings with P_N/P_max >= 0.95 in the
+phase. Prints the table and rewrites the "Faults" section of docs/benchmarks.md. Needs root and
+`ip` (iproute2). Usage (after `source setup.bash`, as root):
+python scripts/bench_faults.py [--controllers tracker spgd policy] [--stage 5] [--mode hard]
+[--phase-s 30] [--settle-s 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "test"))
+SECTION = "## Faults"
+THRESHOLD = 0.95
+
+
+def record_main() -> None:
+    """Run on host A: print 'wall-time power' for every ops/power reading."""
+    import rclpy
+    from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_POWER
+    from std_msgs.msg import Float32
+
+    rclpy.init()
+    node = rclpy.create_node("fault_recorder")
+    node.create_subscription(
+        Float32,
+        TOPIC_POWER,
+        lambda m: print(f"{time.time():.4f} {m.data:.5f}", flush=True),
+        QOS_RELIABLE,
+    )
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def readings(proc, t0: float, t1: float) -> list[tuple[float, float]]:
+    out = []
+    for line in proc.output.splitlines():
+        parts = line.split()
+        if len(parts) == 2:
+            try:
+                t, p = float(parts[0]), float(parts[1])
+            except ValueError:
+                continue
+            if t0 <= t < t1:
+                out.append((t, p))
+    return out
+
+
+def lock_fraction(rows) -> float:
+    return sum(p >= THRESHOLD for _, p in rows) / len(rows) if rows else float("nan")
+
+
+def controller_args(name: str, model: str) -> list[str]:
+    from ros_testing import executable
+
+    args = [*executable("ops_controller_ros", name), "--ros-args", "-p", "seed:=1"]
+    if name == "policy":
+        args += ["-p", f"model:={model}"]
+    return args
+
+
+def run_controller(name: str, args, tmp: Path) -> dict:
+    from ros_testing import ProcessGroup, RelayedHosts, executable
+
+    results = {}
+    with RelayedHosts(tmp, seed=1) as hosts:
+        group = ProcessGroup(tmp)
+        try:
+            env = hosts.env()
+            sim = [*executable("ops_sim_ros", "sim"), "--ros-args"]
+            for p in (f"stage:={args.stage}", f"mode:={args.mode}", "seed:=11", "rate_hz:=100.0"):
+                sim += ["-p", p]
+            hosts.a.start(group, sim, name="sim", env=env).wait_for("stage=", timeout=120)
+            rec = hosts.a.start(group, [sys.executable, __file__, "--record"], name="rec", env=env)
+            ctrl = hosts.b.start(group, controller_args(name, args.model), name=name, env=env)
+            ctrl.wait_for("simulator found", timeout=180)
+            time.sleep(args.settle_s)  # the controller acquires on a clean link (not measured)
+
+            def phase(label, loss=0.0, down_s=0.0, load=0):
+                busy = []
+                if down_s:
+                    hosts.set(down=True)
+                    time.sleep(down_s)
+                hosts.set(loss=loss)
+                t0 = time.time()
+                for _ in range(load):
+                    busy.append(subprocess.Popen([sys.executable, "-c", "while True: pass"]))
+                time.sleep(args.phase_s)
+                for b in busy:
+                    b.kill()
+                    b.wait()
+                rows = readings(rec, t0, time.time())
+                row = {"fraction": lock_fraction(rows), "readings": len(rows)}
+                if down_s:
+                    locked = [t for t, p in rows if p >= THRESHOLD]
+                    row["recovery_s"] = locked[0] - t0 if locked else float("inf")
+                results[label] = row
+                print(f"[{name}] {label}: {row}", flush=True)
+
+            phase("clean")
+            phase("loss 5 %", loss=0.05)
+            phase("loss 20 %", loss=0.20)
+            phase("outage 1 s", down_s=1.0)
+            phase("outage 30 s", down_s=30.0)
+            phase(f"load ({args.load} busy processes)", load=args.load)
+            for proc in group.started:
+                if proc.popen.poll() is not None:
+                    results["exited"] = f"{proc.args[-1]} exited ({proc.popen.returncode})"
+        finally:
+            group.stop_all()
+    return results
+
+
+def table(all_results: dict) -> str:
+    labels = list(next(iter(all_results.values())).keys())
+    labels = [x for x in labels if x != "exited"]
+    head = "| condition | " + " | ".join(all_results) + " |"
+    lines = [head, "|---" * (len(all_results) + 1) + "|"]
+    for label in labels:
+        cells = []
+        for res in all_results.values():
+            row = res.get(label)
+            if row is None:
+                cells.append("–")
+                continue
+            cell = f"{row['fraction']:.3f} ({row['readings']})"
+            if "recovery_s" in row:
+                cell += f", back in {row['recovery_s']:.1f} s"
+            cells.append(cell)
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def write_section(text: str) -> None:
+    path = REPO / "docs" / "benchmarks.md"
+    doc = path.read_text()
+    start = doc.find(SECTION)
+    if start < 0:
+        doc = doc.rstrip("\n") + "\n\n" + text + "\n"
+    else:
+        end = doc.find("\n## ", start + len(SECTION))
+        doc = doc[:start] + text + ("\n" + doc[end + 1 :] if end >= 0 else "\n")
+    path.write_text(doc)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--record", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--controllers", nargs="+", default=["tracker", "spgd", "policy"])
+    parser.add_argument("--stage", type=int, default=5)
+    parser.add_argument("--mode", default="hard")
+    parser.add_argument("--model", default=str(REPO / "models" / "n5_hard"))
+    parser.add_argument("--phase-s", type=float, default=30.0)
+    parser.add_argument("--settle-s", type=float, default=30.0)
+    parser.add_argument("--load", type=int, default=2, help="busy processes of the load phase")
+    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
+    args = parser.parse_args(argv)
+    if args.record:
+        record_main()
+        return 0
+    from ros_testing import netns_unavailable_reason
+
+    reason = netns_unavailable_reason()
+    if reason:
+        print(f"bench_faults: {reason}", file=sys.stderr)
+        return 1
+    all_results = {}
+    for name in args.controllers:
+        with tempfile.TemporaryDirectory() as tmp:
+            all_results[name] = run_controller(name, args, Path(tmp))
+    text = table(all_results)
+    cmd = "python scripts/bench_faults.py " + " ".join(
+        a for a in sys.argv[1:] if not re.match(r"--no-docs", a)
+    )
+    exits = [f"{n}: {r['exited']}" for n, r in all_results.items() if "exited" in r]
+    section = (
+        f"{SECTION}\n\nLock fraction (share of the simulator's readings with P_N/P_max >= "
+        f"{THRESHOLD}, readings in brackets) of each controller on host B driving a stage "
+        f"{args.stage} {args.mode} simulator on host A through scripts/fault_relay.py, "
+        f"{args.phase_s:g} s per condition after {args.settle_s:g} s on a clean link; after an "
+        "outage, the window starts when the link returns and `back in` is the time to the "
+        f"first reading >= {THRESHOLD}. Command: `{cmd.strip()}` "
+        f"({platform.node()}, {time.strftime('%Y-%m-%d')}, one run; the machine's other jobs "
+        "load it too).\n\n"
+        + text
+        + "\n\n"
+        + ("Exited: " + "; ".join(exits) if exits else "No process exited.")
+        + "\n"
+    )
+    print(section)
+    if not args.no_docs:
+        write_section(section)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
