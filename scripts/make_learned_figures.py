@@ -53,9 +53,9 @@ def table_rows(models: list[dict]) -> list[str]:
     """One markdown row per shipped model."""
     rows = [
         "| model | N, mode | memory k | training reward | training run (one core) "
-        "| env steps of the kept model | held-out test final P_N / P_max | issue 11 goal "
-        "| paper's TD3 (N = 5, its detector) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| env steps of the kept model | held-out test final P_N / P_max (mean ± std over seeds) "
+        "| worst episode | episodes | issue 11 goal | paper's TD3 (N = 5, its detector) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m in models:
         meta, test, curve = m["meta"], m["test"], m["curve"]
@@ -68,7 +68,8 @@ def table_rows(models: list[dict]) -> list[str]:
             f"| `models/{m['name']}` | {n}, {mode} | {meta.get('obs_history', 0)} | "
             f"{meta.get('reward') or 'paper'} | "
             f"{minutes:.0f} min | {meta['timesteps']:,} | {test['final_power_mean']:.3f} ± "
-            f"{test['final_power_std']:.3f} | {goal} | {paper} |"
+            f"{test['final_power_std']:.3f} | {test['final_power_min_episode']:.3f} | "
+            f"{len(test.get('final_power_per_episode', [])) or '-'} | {goal} | {paper} |"
         )
     return rows
 
