@@ -49,6 +49,8 @@ class RayCluster:
         self.head = self.worker = None
         # Ray's socket paths must fit in 107 bytes: its temp dirs go to a short folder.
         self.ray_tmp = Path(tempfile.mkdtemp(prefix="opsray"))
+        for host in "ab":  # each node's TMPDIR (its runs' folders), removed with the rest
+            (self.ray_tmp / f"tmp_{host}").mkdir()
 
     def close(self) -> None:
         """Remove Ray's folders (after the hosts are closed, which stops the nodes)."""
@@ -68,14 +70,14 @@ class RayCluster:
 
     def driver_env(self, **extra) -> dict:
         """Environment of the benchmark on host A: the project's, with A's home (the token)."""
-        env = self.hosts.env(HOME=str(self.home_a), **extra)
+        env = self.hosts.env(HOME=str(self.home_a), TMPDIR=str(self.ray_tmp / "tmp_a"), **extra)
         for var in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH", "RAY_ADDRESS"):
             env.pop(var, None)
         return env
 
     def worker_env(self) -> dict:
         env = {k: v for k, v in self.driver_env().items() if k not in PROJECT_VARS}
-        env.update(HOME=str(self.home_b), RAY_AUTH_MODE="token")
+        env.update(HOME=str(self.home_b), RAY_AUTH_MODE="token", TMPDIR=str(self.ray_tmp / "tmp_b"))
         return env
 
     def _start(self, host, args, name, env, cwd=None):

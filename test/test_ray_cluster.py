@@ -12,6 +12,7 @@ import re
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from ray_cluster import RayCluster
@@ -64,8 +65,10 @@ def hosts():
 
 
 def bench_cmd(cluster, out) -> list[str]:
+    # From a folder of its own: Ray puts the driver's folder on the workers' path.
     return [
-        sys.executable, "-m", "ops_gym_bridge.benchmark", "--profile", "smoke", "--out", str(out),
+        "env", "-C", str(Path(out).parent), sys.executable, "-m", "ops_gym_bridge.benchmark",
+        "--profile", "smoke", "--out", str(out),
         "--ray-address", cluster.address, "--retry-delay", "1", "--status-every", "10", *SUBSET,
     ]  # fmt: skip
 
@@ -91,7 +94,7 @@ def test_smoke_runs_on_both_nodes_and_a_killed_node_costs_a_retry(cluster, hosts
     log = (out / "logs" / f"{victim}.log").read_text()
     assert error.group(1) in log
     attempts = re.findall(r"attempt on node (10\.231\.0\.\d)", log)
-    assert attempts[0] == "10.231.0.2" and attempts[-1] == "10.231.0.1", log
+    assert attempts == ["10.231.0.2", "10.231.0.1"], log
     assert "Ray cluster: 1 node(s), 1 CPU(s) (was 2)" in text
     # Everything stored, by the driver, from both nodes.
     assert f"finished: {len(RUNS)}/{len(RUNS)} runs stored" in text
@@ -136,7 +139,9 @@ def test_a_node_that_cannot_import_is_reported_and_avoided(cluster, hosts, procs
         log = (out / "logs" / f"{rid}.log").read_text()
         assert kind in log and "gymnasium is not installed on this node" in log
         assert log.rstrip().splitlines()[-1].startswith(f"[run {rid}] done"), log
+        # One failure on B, then A: the failed node is avoided on the retry.
         assert re.findall(r"attempt on node (\S+)", log)[-1] == "10.231.0.1", log
+        assert text.count(f"run {rid}: Ray error on node") == 1, text
     assert {p.parent.name for p in out.glob("runs/*/run.json")} == {
         "n2_easy_spgd",
         "n2_easy_ppo_s0",

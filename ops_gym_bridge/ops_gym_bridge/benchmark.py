@@ -382,7 +382,7 @@ def execute(args, specs: list[dict], out: Path) -> int:
     stored = {s["id"] for s in specs if (out / "runs" / s["id"] / "run.json").exists()}
     todo = [s for s in specs if s["id"] not in stored]
     if args.ray_address:
-        pool = RayPool(args.ray_address, args.jobs, out, out / "logs", pip=args.ray_pip)
+        pool = RayPool(args.ray_address, args.jobs, out, out / "logs")
     else:
         pool = LocalPool(args.jobs, out, out / "logs")
     prog = Progress(total=len(specs), jobs=pool.jobs, done=len(stored))
@@ -474,12 +474,6 @@ def build_parser():
     p.add_argument(
         "--ray-address",
         help="run on Ray: auto, HOST:PORT, or local (start a local instance with --jobs CPUs)",
-    )
-    p.add_argument(
-        "--ray-pip",
-        action="store_true",
-        help="have Ray install the runs' Python packages on every node (pip, the driver's "
-        "versions) instead of using the nodes' own",
     )
     p.add_argument("--out", default="runs/benchmark", help="directory of the stored runs")
     p.add_argument("--save-every", type=int, default=10_000, help="steps between saves of a run")

@@ -1,20 +1,21 @@
 """The benchmark's runs as Ray tasks (``benchmark --ray-address``), on any node of a cluster.
 
 What a node needs: Ray and the driver's Python version with the third-party packages a run uses
-(:data:`WORKER_DISTRIBUTIONS`, at the driver's versions; ``--ray-pip`` has Ray install them on
-each node in a virtual environment of its own). Nothing of the
-project: the three packages travel with every task in its ``runtime_env`` (``py_modules``), and
-nothing is read from or written to a shared file system. A task runs the worker
-(``python -m ops_gym_bridge.bench_worker``) in a temporary directory of its node and returns the
-finished run (packed) with its log; the driver stores it in ``OUT`` atomically. A run that stops
-(Ctrl-C of the benchmark) or fails returns its work directory, which the driver keeps in
-``OUT/work/<id>/`` and sends with the next attempt, so the run resumes where it stopped.
+(:data:`WORKER_DISTRIBUTIONS`) at the driver's versions; a task checks them first and fails
+with a line naming what differs. Nothing of the project: the three packages travel with every
+task in its ``runtime_env`` (``py_modules``), and nothing is read from or written to a shared
+file system. A task runs the worker (``python -m ops_gym_bridge.bench_worker``) in a temporary
+directory of its node and returns the finished run (packed) with its log; the driver stores it
+in ``OUT`` atomically. A run that stops (Ctrl-C of the benchmark) or fails returns its work
+directory, which the driver keeps in ``OUT/work/<id>/`` and sends with the next attempt, so the
+run resumes where it stopped.
 
 Errors reach the user: a task that fails outside the worker (cannot import, runtime environment,
 node lost, worker killed) is reported with Ray's error type and message on stderr and in the
-run's log, and the node it failed on is avoided on the retry (a label selector excluding the node,
-falling back to any node when no other is there). Runs go to whatever CPUs the cluster has: as
-many runs are in flight as the cluster has CPUs now, read again as nodes come and go.
+run's log, and the node it failed on is avoided on the retry (a soft affinity to a live node the
+run has not failed on: it waits for a CPU there, and goes anywhere if that node leaves). Runs go
+to whatever CPUs the cluster has: as many runs are in flight as the cluster has CPUs now, read
+again as nodes come and go.
 
 :func:`check_address` checks the cluster address before anything is written: an address that
 cannot be reached, or a cluster that refuses this machine's token, is one line naming the fix.
@@ -39,7 +40,7 @@ from typing import Any
 
 #: The project's packages, shipped to every node with each task.
 PACKAGES = ("ops_gym_bridge", "ops_sim_ros", "ops_controller_ros")
-#: The third-party distributions a run imports (``--ray-pip`` pins them at the driver's versions).
+#: The third-party distributions a run imports; a node must have the driver's versions.
 WORKER_DISTRIBUTIONS = ("numpy", "gymnasium", "stable-baselines3", "sb3-contrib", "torch", "pyyaml")
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 _REFRESH_S = 5.0
@@ -149,28 +150,44 @@ def check_address(address: str, timeout: float = 5.0) -> None:
     )
 
 
-def runtime_env(pip: bool = False) -> dict[str, Any]:
-    """What every task takes with it: the project's packages, one thread per run, and with
-    ``pip`` the third-party requirements (installed by Ray once per node and runtime env)."""
+def runtime_env() -> dict[str, Any]:
+    """What every task takes with it: the project's packages and one thread per run."""
     import importlib
 
     modules = [str(Path(importlib.import_module(p).__file__).resolve().parent) for p in PACKAGES]
-    env: dict[str, Any] = {
+    return {
         "py_modules": modules,
         "excludes": ["__pycache__", "*.pyc"],
         "env_vars": {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"},
     }
-    if pip:
-        env["pip"] = worker_requirements()
-    return env
 
 
-def worker_requirements() -> list[str]:
-    """:data:`WORKER_DISTRIBUTIONS` pinned at the versions this Python has (local labels such
-    as ``+cpu`` dropped: the index decides the build)."""
-    from importlib.metadata import version
+def versions() -> dict[str, str]:
+    """Python's and :data:`WORKER_DISTRIBUTIONS`' versions here (local labels such as ``+cpu``
+    dropped: a build for another accelerator is fine); "missing" where one is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
 
-    return [f"{d}=={version(d).split('+')[0]}" for d in WORKER_DISTRIBUTIONS]
+    found = {"python": ".".join(map(str, sys.version_info[:2]))}
+    for dist in WORKER_DISTRIBUTIONS:
+        try:
+            found[dist] = version(dist).split("+")[0]
+        except PackageNotFoundError:
+            found[dist] = "missing"
+    return found
+
+
+def check_versions(driver: dict[str, str]) -> None:
+    """Raise RuntimeError naming every package whose version here differs from the driver's."""
+    here = versions()
+    wrong = [
+        f"{k} {here.get(k, 'missing')} (driver {v})" for k, v in driver.items() if here.get(k) != v
+    ]
+    if wrong:
+        pins = " ".join(f"{k}=={v}" for k, v in driver.items() if k != "python")
+        raise RuntimeError(
+            f"this node's Python differs from the driver's: {', '.join(wrong)}; "
+            f"install the driver's versions here (pip install {pins})"
+        )
 
 
 # ------------------------------------------------------------------------------ on the node
@@ -195,14 +212,15 @@ def _unpack(data: bytes, directory: Path) -> None:
     os.replace(incoming, directory)
 
 
-def run_task(spec: dict, work: bytes | None, stop_flag):
+def run_task(spec: dict, work: bytes | None, stop_flag, driver_versions: dict[str, str]):
     """Body of the Ray task (a generator): first where it runs, then the outcome of the run."""
+    check_versions(driver_versions)
     import ray
     from ray.util import get_node_ip_address
 
     yield {"node": ray.get_runtime_context().get_node_id(), "host": get_node_ip_address()}
     tmp = Path(tempfile.mkdtemp(prefix=f"ops_bench_{spec['id']}_"))
-    try:
+    try:  # the node's folder goes before the outcome is handed over
         spec_path = tmp / "spec.json"
         spec_path.write_text(json.dumps(spec))
         if work is not None:
@@ -214,23 +232,8 @@ def run_task(spec: dict, work: bytes | None, stop_flag):
                 stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
                 start_new_session=True,
             )  # fmt: skip
-            stopping = False
-            while True:
-                try:
-                    code = proc.wait(timeout=2.0)
-                    break
-                except subprocess.TimeoutExpired:
-                    pass
-                except KeyboardInterrupt:  # ray.cancel
-                    stopping = True
-                if not stopping:
-                    try:
-                        stopping = bool(ray.get(stop_flag.is_set.remote(), timeout=10))
-                    except Exception:  # the flag's actor gone: the driver is gone too
-                        stopping = True
-                    if stopping:
-                        proc.send_signal(signal.SIGTERM)
-        yield {
+            code = _wait(proc, stop_flag)
+        outcome = {
             "code": code,
             "log": log_path.read_text(errors="replace"),
             "run": _pack(tmp / "runs" / spec["id"]) if code == 0 else None,
@@ -238,6 +241,27 @@ def run_task(spec: dict, work: bytes | None, stop_flag):
         }
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    yield outcome
+
+
+def _wait(proc: subprocess.Popen, stop_flag) -> int:
+    """The worker's exit code; one SIGTERM to it (it saves) once the driver's flag is set."""
+    import ray
+
+    signalled = False
+    while True:
+        try:
+            return proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            try:
+                stop = signalled or bool(ray.get(stop_flag.is_set.remote(), timeout=10))
+            except Exception:  # the flag's actor is gone: so is the driver
+                stop = True
+        except KeyboardInterrupt:  # ray.cancel
+            stop = True
+        if stop and not signalled:
+            proc.send_signal(signal.SIGTERM)
+            signalled = True
 
 
 class _StopFlag:
@@ -265,11 +289,12 @@ def describe_error(exc: BaseException) -> str:
 class RayPool:
     """Runs as Ray tasks of one CPU each, on whatever nodes the cluster has (see the module)."""
 
-    def __init__(self, address: str, jobs: int, out: Path, log_dir: Path, pip: bool = False):
+    def __init__(self, address: str, jobs: int, out: Path, log_dir: Path):
         import ray
 
         self.ray = ray
-        env = runtime_env(pip)
+        self.versions = versions()
+        env = runtime_env()
         if address == "local":
             ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False, runtime_env=env)
         else:
@@ -310,13 +335,32 @@ class RayPool:
         rid = spec["id"]
         work = _pack(self.out / "work" / rid)
         task = self.task
-        if self.avoid.get(rid):
-            task = task.options(
-                label_selector={"ray.io/node-id": f"!in({','.join(sorted(self.avoid[rid]))})"},
-                fallback_strategy=[{"label_selector": {}}],
-            )
-        self.running[task.remote(spec, work, self.flag)] = rid
+        elsewhere = self._elsewhere(rid)
+        if elsewhere is not None:
+            task = task.options(scheduling_strategy=elsewhere)
+        self.running[task.remote(spec, work, self.flag, self.versions)] = rid
         self.where.pop(rid, None)
+
+    def _elsewhere(self, rid: str):
+        """For a run that failed on some nodes: a soft affinity to a live node it has not failed
+        on (the one with most CPUs). The retry waits for a CPU there, and goes anywhere if that
+        node leaves; where the run has failed on every node, None (anywhere)."""
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        avoid = self.avoid.get(rid)
+        if not avoid:
+            return None
+        good = [
+            n
+            for n in self.ray.nodes()
+            if n.get("Alive")
+            and n["NodeID"] not in avoid
+            and n.get("Resources", {}).get("CPU", 0) >= 1
+        ]
+        if not good:
+            return None
+        node = max(good, key=lambda n: n["Resources"]["CPU"])
+        return NodeAffinitySchedulingStrategy(node["NodeID"], soft=True)
 
     def _log(self, rid: str, text: str) -> None:
         with open(self.log_dir / f"{rid}.log", "a") as f:

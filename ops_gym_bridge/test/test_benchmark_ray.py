@@ -159,3 +159,68 @@ def test_the_right_token_passes_and_turns_token_mode_on(token_head, tmp_path, mo
     monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(path))
     check_address(address)
     assert os.environ["RAY_AUTH_MODE"] == "token"
+
+
+@pytest.mark.timeout(480)
+def test_ctrl_c_brings_the_work_back_and_the_same_command_resumes(tmp_path):
+    """On a local Ray instance: SIGINT stops the run on its node, which saves; its work folder
+    comes back to OUT/work and the next start sends it with the run, which resumes."""
+    import glob
+    import json
+    import shutil
+    import signal
+    import tempfile
+    import time
+
+    out = tmp_path / "b"
+    rid = "n2_easy_sac_s0"
+    base = [sys.executable, "-m", "ops_gym_bridge.benchmark", "--profile", "smoke"]
+    base += ["--out", str(out), "--ray-address", "local", "--jobs", "1", "--algos", "sac"]
+    base += ["--modes", "easy", "--controllers", "--extra-stages", "--save-every", "100000"]
+    # The local node's TMPDIR (its tasks' folders; short: Ray's sockets go there too).
+    node_tmp = Path(tempfile.mkdtemp(prefix="opsn"))
+    env = {**os.environ, "TMPDIR": str(node_tmp)}
+    proc = subprocess.Popen(
+        [*base, "--timesteps", "50000"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    # The run's folder on its node (this machine): its progress file says how far it trained.
+    pattern = f"{node_tmp}/ops_bench_{rid}_*/work/{rid}/progress.json"
+
+    def trained() -> int:
+        for path in glob.glob(pattern):
+            try:
+                return int(json.loads(Path(path).read_text())["timesteps"])
+            except (OSError, ValueError, KeyError):
+                pass
+        return 0
+
+    try:
+        deadline = time.monotonic() + 300
+        while trained() < 1000:  # progress is written every 1000 steps
+            assert proc.poll() is None and time.monotonic() < deadline, "no progress"
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGINT)
+        text = proc.communicate(timeout=120)[0]
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(60)
+        shutil.rmtree(node_tmp / "ray", ignore_errors=True)
+    assert proc.returncode == 130, text
+    assert (out / "work" / rid / "model.zip").exists()
+    assert not list(node_tmp.glob("ops_bench_*"))  # the node's folder is gone
+    assert not (out / "runs" / rid).exists()
+    try:
+        again = subprocess.run(
+            [*base, "--timesteps", "500"], capture_output=True, text=True, timeout=240, env=env
+        )
+    finally:
+        shutil.rmtree(node_tmp, ignore_errors=True)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert f"start {rid} (resuming)" in again.stdout
+    rec = json.loads((out / "runs" / rid / "run.json").read_text())
+    assert rec["timesteps"] >= 1000  # a fresh start would have stopped at 500
