@@ -144,7 +144,8 @@ def main():
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("control step (2 steps per SPGD iteration)")
     ax.set_ylabel("P_N / P_max (test environment)")
-    ax.set_title(f"SPGD-PID, {args.stage} stages, default parameters")
+    label = "the paper's SPGD-PID" if args.variant == "paper" else "SPGD-PID, node defaults"
+    ax.set_title(f"{label}, {args.stage} stages (200-step episodes)")
     ax.grid(alpha=0.3)
     ax.legend(loc="center right", fontsize=9)
     fig.tight_layout()
