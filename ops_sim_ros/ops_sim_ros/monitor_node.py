@@ -97,6 +97,7 @@ class MonitorNode(Node):
         self._first: tuple[np.ndarray, int, float] | None = None
         self._latest: tuple[np.ndarray, int] | None = None
         self._readings = 0
+        self._next_frame_at = 0.0
         self._figure = None
         self._dirty = False
         self._guard = MessageGuard(self)
@@ -182,7 +183,17 @@ class MonitorNode(Node):
     def _on_frame(self):
         if not self._dirty or self._latest is None:
             return
+        now = time.monotonic()
+        if now < self._next_frame_at:
+            return  # drawing is slower than frame_period_s here: keep readings flowing first
         self._dirty = False
+        self._draw_frame()
+        # At most a quarter of the time goes to drawing: a single-threaded executor takes one
+        # reading per pass, so a frame that is always due would starve the subscriptions.
+        took = time.monotonic() - now
+        self._next_frame_at = now + max(self._frame_period, 4.0 * took)
+
+    def _draw_frame(self):
         if self._save is None:
             self._show_live()
         elif self._save.suffix.lower() in (".gif", ".mp4"):
