@@ -121,7 +121,7 @@ def build_parser():
         "--observation",
         choices=OBSERVATION_SETS,
         help="observation set to run the model on: a model runs only on the set it was trained "
-        "on (rig or authors; default: the model's, from its metadata)",
+        "on: rig or authors (default: the model's, from its metadata)",
     )
     p.add_argument("--no-plot", action="store_true", help="do not write curve.png")
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (0: default)")
