@@ -21,6 +21,7 @@ import numpy as np
 from ops_sim_ros.node_params import ParamSpec, declare_all
 from ops_sim_ros.observation import OBSERVATION_SETS, pulse_energies_from_trace
 from ops_sim_ros.ros_interface import (
+    QOS_READINGS,
     QOS_RELIABLE,
     QOS_STATE,
     TOPIC_DELAY_CMD,
@@ -91,8 +92,9 @@ class PolicyNode(Node):
         self._last_power = float("nan")
 
         self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
-        self.create_subscription(Float32MultiArray, TOPIC_INTENSITY, self._on_trace, QOS_RELIABLE)
-        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_RELIABLE)
+        # Readings best effort: a lost one is not waited for (docs/interfaces.md, lossy links).
+        self.create_subscription(Float32MultiArray, TOPIC_INTENSITY, self._on_trace, QOS_READINGS)
+        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
         self._actual: np.ndarray | None = None  # applied delays (authors' observation set)
         self._waiting: Float32 | None = None  # a reading that waits for its applied delays
         if self._spec.needs_applied_delays:
@@ -100,7 +102,7 @@ class PolicyNode(Node):
                 Float32MultiArray, TOPIC_DELAYS_ACTUAL, self._on_actual, QOS_RELIABLE
             )
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
-        self.create_timer(0.05, self._watchdog)
+        self.create_timer(0.01, self._watchdog)  # re-sends after the measured round trip
         self.create_timer(v["log_period_s"], self._log_progress)
         self.get_logger().info(
             f"loaded {self._policy.algo.upper()} model for stage {self._policy.stage} "
@@ -126,7 +128,7 @@ class PolicyNode(Node):
         self._delays = delays
         self._trace = None
         self._actual = self._waiting = None
-        self._tracker.on_setpoints(delays, accept_without_command=True)
+        self._tracker.on_setpoints(delays, accept_without_command=True, now=time.monotonic())
 
     def _on_actual(self, msg: Float32MultiArray):
         """The simulator-only oracle of the applied delays (published right after ops/delays)."""
