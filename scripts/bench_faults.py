@@ -182,6 +182,9 @@ def main(argv=None) -> int:
     parser.add_argument("--settle-s", type=float, default=30.0)
     parser.add_argument("--load", type=int, default=2, help="busy processes of the load phase")
     parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
+    parser.add_argument(
+        "--logs", default="/tmp/bench_faults", help="each run's process logs go under this folder"
+    )
     args = parser.parse_args(argv)
     if args.record:
         record_main()
@@ -193,9 +196,11 @@ def main(argv=None) -> int:
         print(f"bench_faults: {reason}", file=sys.stderr)
         return 1
     all_results = {}
+    Path(args.logs).mkdir(parents=True, exist_ok=True)
     for name in args.controllers:
-        with tempfile.TemporaryDirectory() as tmp:
-            all_results[name] = run_controller(name, args, Path(tmp))
+        logs = Path(tempfile.mkdtemp(prefix=f"{name}_", dir=args.logs))
+        all_results[name] = run_controller(name, args, logs)
+        print(f"[{name}] logs in {logs}", flush=True)
     text = table(all_results)
     cmd = "python scripts/bench_faults.py " + " ".join(
         a for a in sys.argv[1:] if not re.match(r"--no-docs", a)
