@@ -284,6 +284,17 @@ def netns_unavailable_reason() -> str | None:
     return None
 
 
+def make_two_hosts(what: str) -> TwoHosts:
+    """:class:`TwoHosts`, or skip the test saying why namespaces cannot be made here."""
+    reason = netns_unavailable_reason()
+    if reason:
+        pytest.skip(f"{what} need network namespaces: {reason}")
+    try:
+        return TwoHosts()
+    except NetnsUnavailable as exc:
+        pytest.skip(f"{what}: cannot make network namespaces here: {exc}")
+
+
 def _ip(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         ["ip", *args], capture_output=True, text=True, timeout=30, stdin=subprocess.DEVNULL

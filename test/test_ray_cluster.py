@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 from ray_cluster import RayCluster
-from ros_testing import NetnsUnavailable, TwoHosts, assert_no_traceback, netns_unavailable_reason
+from ros_testing import assert_no_traceback, make_two_hosts
 
 pytest.importorskip("ray")
 
@@ -54,14 +54,7 @@ def cluster(hosts, procs, tmp_path):
 
 @pytest.fixture
 def hosts():
-    reason = netns_unavailable_reason()
-    if reason:
-        pytest.skip(f"the Ray cluster test needs network namespaces: {reason}")
-    try:
-        pair = TwoHosts()
-    except NetnsUnavailable as exc:
-        pytest.skip(f"the Ray cluster test: cannot make network namespaces here: {exc}")
-    with pair:
+    with make_two_hosts("the Ray cluster tests") as pair:
         yield pair
 
 

@@ -21,11 +21,9 @@ import pytest
 from ros_testing import (
     PYTHON,
     REPO,
-    NetnsUnavailable,
-    TwoHosts,
     assert_no_traceback,
     executable,
-    netns_unavailable_reason,
+    make_two_hosts,
 )
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
@@ -38,14 +36,7 @@ BRIDGE_TIMEOUT_S = 2.0
 
 @pytest.fixture(scope="module")
 def hosts():
-    reason = netns_unavailable_reason()
-    if reason:
-        pytest.skip(f"two-host tests need network namespaces: {reason}")
-    try:
-        pair = TwoHosts()
-    except NetnsUnavailable as exc:
-        pytest.skip(f"two-host tests: cannot make network namespaces here: {exc}")
-    with pair:
+    with make_two_hosts("two-host tests") as pair:
         yield pair
 
 
