@@ -311,9 +311,10 @@ def train(spec: dict, work: Path):
             print(f"[run {spec['id']}] stopped; saved in {work}", flush=True)
             raise KeyboardInterrupt
         signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+        return run.model, read_metadata(work)
     from ops_controller_ros.policy_io import load_policy
 
-    policy = load_policy(work)
+    policy = load_policy(work)  # finished before: the stored model
     return policy.model, policy.metadata
 
 
