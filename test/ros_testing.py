@@ -62,6 +62,21 @@ def ros2_command() -> list[str]:
     return [exe]
 
 
+def descendants(pid: int) -> list[int]:
+    """The children of ``pid``, their children, ... (from /proc)."""
+    parents: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    found, todo = [], [pid]
+    while todo:
+        kids = parents.get(todo.pop(), [])
+        found += kids
+        todo += kids
+    return found
+
+
 class Process:
     """A started command with its output in a file."""
 
@@ -116,6 +131,13 @@ class Process:
     def signal(self, sig=signal.SIGINT) -> None:
         if self.popen.poll() is None:
             os.killpg(self.popen.pid, sig)
+
+    def signal_tree(self, sig) -> None:
+        """``sig`` to the process and every descendant: ``ros2 run`` starts the node in a
+        session of its own and forwards SIGINT / SIGTERM only (SIGSTOP / SIGCONT need this)."""
+        for pid in [*descendants(self.popen.pid), self.popen.pid]:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, sig)
 
     def stop(self, timeout: float = 10.0) -> int | None:
         """SIGINT, then SIGKILL after ``timeout``; returns the exit code."""

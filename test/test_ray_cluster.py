@@ -29,20 +29,26 @@ RUNS = {f"n2_{m}_{r}" for m in ("easy", "hard") for r in ("spgd", "ppo_s0", "td3
 ON_B = re.compile(r"\[benchmark\] (n2_\w+) running on node 10\.231\.0\.2 ")
 
 
-def wait_for_victim(bench, timeout: float) -> str:
-    """A training run in progress on B, once another run has finished there."""
+def wait_for_victim(bench, timeout: float) -> tuple[str, bool]:
+    """A training run in progress on B, and whether another run had finished there before.
+
+    Preferably one once B has finished a run (so a result computed on B reaches the driver too);
+    but how many runs B gets depends on the CPUs' speed: when every run of the plan has started
+    and B is still on its first, that one is the victim."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         text = bench.output
         on_b = ON_B.findall(text)
+        started = set(re.findall(r"\[benchmark\] start (n2_\w+)", text))
         done = set(re.findall(r"done (n2_\w+): final", text))
         live = [r for r in on_b if r not in done and r.endswith("_s0")]
-        if live and any(r in done for r in on_b):
-            return live[-1]
+        finished_on_b = any(r in done for r in on_b)
+        if live and (finished_on_b or started >= RUNS):
+            return live[-1], finished_on_b
         if bench.popen.poll() is not None:
             break
         time.sleep(0.2)
-    raise AssertionError(f"no run finished on B and another in progress there:\n{bench.output}")
+    raise AssertionError(f"no training run in progress on B:\n{bench.output}")
 
 
 @pytest.fixture
@@ -78,7 +84,7 @@ def test_smoke_runs_on_both_nodes_and_a_killed_node_costs_a_retry(cluster, hosts
     cluster.start_worker()
     assert cluster.project_importable_on_worker() == [False, False, False]
     bench.wait_for(r"Ray cluster: 2 node\(s\), 2 CPU\(s\) \(was 1\)", timeout=120)
-    victim = wait_for_victim(bench, timeout=400)
+    victim, finished_on_b = wait_for_victim(bench, timeout=400)
     assert cluster.kill_worker_node() > 0
     assert bench.wait_exit(400) == 0, bench.output
     text = bench.output
@@ -102,7 +108,8 @@ def test_smoke_runs_on_both_nodes_and_a_killed_node_costs_a_retry(cluster, hosts
         nodes.add(
             re.findall(r"attempt on node (\S+)", (out / "logs" / f"{rid}.log").read_text())[-1]
         )
-    assert nodes == {"10.231.0.1", "10.231.0.2"}
+    # B's CPU was used (the victim's first attempt); a run B finished was stored from there.
+    assert nodes == ({"10.231.0.1", "10.231.0.2"} if finished_on_b else {"10.231.0.1"})
     assert not (out / "work").exists() or not list((out / "work").iterdir())
     # The same command again: nothing left to do.
     again = subprocess.run(

@@ -45,7 +45,7 @@ def test_tracker_locks_a_medium_n5_stacker_within_1000_readings(procs, observer,
         locked, timeout=90, what="P_N/P_max >= 0.95 over the last 10 readings (tracker running)"
     )
     assert observer.count("power") - before <= 1000
-    tracker.wait_for(r"reading \d+ \(locked\): P_N/P_max = 0\.9", timeout=10)
+    tracker.wait_for(r"reading \d+ \(locked;[^)\n]*\): P_N/P_max = 0\.9", timeout=10)
     tracker.signal(signal.SIGTERM)
     assert tracker.wait_exit(15) == 0  # a clean exit on SIGTERM
     assert_no_traceback(tracker.output)

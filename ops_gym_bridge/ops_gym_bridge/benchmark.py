@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ops_controller_ros.controllers import CONTROLLERS
+from ops_controller_ros.controllers import BENCHMARK_PARAMS, CONTROLLERS
 from ops_sim_ros.config import DETECTORS, MODES
 from ops_sim_ros.observation import OBSERVATION_SETS
 
@@ -134,6 +134,7 @@ def plan(args) -> list[dict[str, Any]]:
                     "id": run_id("controller", name, stage, mode, None),
                     "kind": "controller",
                     "controller": name,
+                    "controller_params": dict(BENCHMARK_PARAMS.get(name, {})),
                     "stage": stage,
                     "mode": mode,
                     "seed": None,
@@ -449,7 +450,9 @@ def build_parser():
         help="observation set of the trained agents: rig (what a real stacker measures) or "
         "authors (the authors' CPS_env, with the actual delay-line lengths: the paper's Table 1)",
     )
-    p.add_argument("--stage", type=int, help="stages N of Table 1 (default: the profile's)")
+    p.add_argument(
+        "--stage", type=cli_args.stage_type, help="stages N of Table 1 (default: the profile's)"
+    )
     p.add_argument("--algos", nargs="+", choices=ALGOS, help="(default: the profile's)")
     p.add_argument("--seeds", type=int, nargs="+", help="training seeds (default: the profile's)")
     p.add_argument(

@@ -38,7 +38,9 @@ class RosOpsEnv(gym.Env):
     Arguments: ``stage``, ``mode``, ``split`` and config ``overrides`` (as ``OpsEnv``; they must
     describe the simulator that runs: the bridge cannot set them, but it checks the stage),
     ``namespace`` (e.g. ``"/rig2"`` for a sim started with ``-r __ns:=/rig2``), ``domain_id``
-    (None: ``ROS_DOMAIN_ID``), ``timeout_s`` (deadline of every wait), ``max_episode_steps``.
+    (None: ``ROS_DOMAIN_ID``), ``timeout_s`` (deadline of every wait; None: no deadline, the env
+    waits through outages of any length and re-sends every ``retry_after_s``),
+    ``max_episode_steps``.
 
     ``info``: ``power`` (P_N/P_max), ``setpoints_fs`` (set-points now applied, as echoed by the
     simulator), ``delays_fs`` (with the authors' observation set only: the applied delays of the
@@ -57,7 +59,7 @@ class RosOpsEnv(gym.Env):
         split: str = "train",
         namespace: str = "",
         domain_id: int | None = None,
-        timeout_s: float = 5.0,
+        timeout_s: float | None = 5.0,
         max_episode_steps: int = 200,
         action_type: str = "increment",
         observation_options: dict[str, Any] | None = None,

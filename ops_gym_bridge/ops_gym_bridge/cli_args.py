@@ -55,6 +55,17 @@ def int_in(low: int, high: int | None = None, what: str = "value"):
     return parse
 
 
+def non_negative_float(text: str) -> float:
+    """An argparse ``type``: a finite number >= 0 (seconds; 0 often means "no limit")."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds (got {text!r})") from None
+    if not (0.0 <= value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 (got {text})")
+    return value
+
+
 #: ``--stage``: the number of stacking stages, 1 to MAX_STAGE.
 stage_type = int_in(1, MAX_STAGE, "stage")
 #: A count that must be at least one (episodes, steps, timesteps, ...).

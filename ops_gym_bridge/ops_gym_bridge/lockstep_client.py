@@ -9,13 +9,17 @@ Protocol (docs/interfaces.md): a command is answered by one message on each of `
 must echo the set-points sent; older messages (left over by an earlier timeout) are skipped by
 their position in each topic's queue. Isolation: a private Context (optionally on its own
 ``domain_id``) and a node under ``namespace``; no thread is started (the client spins its own
-executor while it waits). Every wait has a deadline; when it passes,
-:class:`SimulatorTimeoutError` says what was awaited.
+executor while it waits). With a finite ``timeout_s`` every wait has a deadline; when it passes,
+:class:`SimulatorTimeoutError` says what was awaited. With ``timeout_s=None`` (training's
+default) a wait has no deadline: through lost messages and outages of any length the client
+re-sends its request every ``retry_after_s``, says every few seconds that it is still waiting, and
+carries on when the simulator answers again (issue 21).
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import time
 from collections import deque
@@ -27,6 +31,10 @@ _TOPICS = ("intensity", "power", "reward", "delays")
 _COUNTER = itertools.count()
 #: Set-points echoed on ops/delays are float32 copies of the command (the controllers' rule).
 ECHO_TOLERANCE_FS = MATCH_TOLERANCE_FS
+#: Waits that are no request's answer (draining, the lockstep check) end after this at most.
+HOUSEKEEPING_LIMIT_S = 5.0
+#: How often a wait without deadline says that it still waits.
+STILL_WAITING_EVERY_S = 10.0
 
 
 class BridgeError(RuntimeError):
@@ -53,8 +61,8 @@ class LockstepClient:
     """Requests to one lockstep simulator and the four outputs that answer each.
 
     ``stage`` and ``mode`` describe the simulator expected (the stage is checked, the mode only
-    named in hints); ``timeout_s`` bounds every wait; a request unanswered for ``retry_after_s``
-    is sent again (``retries`` counts them).
+    named in hints); ``timeout_s`` bounds every wait (None or ``inf``: no bound, for outages of any
+    length); a request unanswered for ``retry_after_s`` is sent again (``retries`` counts them).
     """
 
     def __init__(
@@ -63,13 +71,15 @@ class LockstepClient:
         mode: str,
         namespace: str = "",
         domain_id: int | None = None,
-        timeout_s: float = 5.0,
+        timeout_s: float | None = 5.0,
         retry_after_s: float | None = 1.0,
         node_name: str | None = None,
         with_actual: bool = False,
     ) -> None:
+        if timeout_s is None:
+            timeout_s = math.inf
         if not (timeout_s > 0):
-            raise ValueError(f"timeout_s must be > 0 (got {timeout_s})")
+            raise ValueError(f"timeout_s must be > 0 or None (no bound); got {timeout_s}")
         self.stage = int(stage)
         self.mode = mode
         self.timeout_s = float(timeout_s)
@@ -79,6 +89,8 @@ class LockstepClient:
             None if not retry_after_s else min(float(retry_after_s), self.timeout_s / 2)
         )
         self.retries = 0  # requests sent again so far
+        self.outages = 0  # requests answered only after a resend
+        self._unanswered_since: float | None = None  # first resend of the current request
         self._late_possible = False  # an earlier wait timed out: old answers may still arrive
         self._timed_out = False  # a wait timed out since the last successful reset
         self._lockstep_checked = False
@@ -182,12 +194,20 @@ class LockstepClient:
             rclpy.try_shutdown(context=context)
             self._context = None
 
-    def _spin_until(self, ready, deadline: float) -> bool:
-        """Process callbacks until ``ready()`` or the deadline; returns ready()."""
+    def _spin_until(self, ready, deadline: float, waiting_for: str | None = None) -> bool:
+        """Process callbacks until ``ready()`` or the deadline; returns ready(). With
+        ``waiting_for``, a long wait says every few seconds that it still waits."""
+        start = said = time.monotonic()
         while not ready():
-            left = deadline - time.monotonic()
+            now = time.monotonic()
+            left = deadline - now
             if left <= 0:
                 return ready()
+            if waiting_for and now - said >= STILL_WAITING_EVERY_S:
+                said = now
+                self._node.get_logger().warning(
+                    f"still waiting for {waiting_for} ({now - start:.0f} s; {self._where})"
+                )
             self._executor.spin_once(timeout_sec=min(left, 0.1))
         return True
 
@@ -199,7 +219,7 @@ class LockstepClient:
         """
         seen = 0
         quiet_since = time.monotonic()
-        end = quiet_since + max(self.timeout_s, grace_s)
+        end = quiet_since + max(min(self.timeout_s, HOUSEKEEPING_LIMIT_S), grace_s)
         while True:
             before = sum(len(q) for q in self._queues.values())
             self._executor.spin_once(timeout_sec=min(grace_s, 0.02) if grace_s > 0 else 0.0)
@@ -255,7 +275,8 @@ class LockstepClient:
                 self._lockstep_checked = True
                 return
             future = client.call_async(GetParameters.Request(names=["lockstep"]))
-            if not self._spin_until(future.done, time.monotonic() + self.timeout_s):
+            limit = min(self.timeout_s, HOUSEKEEPING_LIMIT_S)
+            if not self._spin_until(future.done, time.monotonic() + limit):
                 client.remove_pending_request(future)
                 return
             values = future.result().values if future.result() is not None else []
@@ -347,6 +368,7 @@ class LockstepClient:
     # ------------------------------------------------------------------ requests
     def reset(self) -> tuple:
         """Call ``ops/reset`` and return the new episode's four outputs."""
+        self._unanswered_since = None
         self._wait_for_simulator()
         self._prepare(strict=False)
         deadline = time.monotonic() + self.timeout_s
@@ -378,11 +400,25 @@ class LockstepClient:
             except _AttemptTimeout:
                 self._retry()
         self._timed_out = False
+        self._answered("reset")
         return msgs
 
     def _wait_for_simulator(self) -> None:
         """The reset service answers, the topics are connected, the simulator is in lockstep."""
-        if not self._reset_client.wait_for_service(timeout_sec=self.timeout_s):
+        start = said = time.monotonic()
+        deadline = start + self.timeout_s
+        while not self._reset_client.wait_for_service(
+            timeout_sec=max(0.0, min(1.0, deadline - time.monotonic()))
+        ):
+            now = time.monotonic()
+            if now < deadline:
+                if now - said >= STILL_WAITING_EVERY_S:
+                    said = now
+                    self._node.get_logger().warning(
+                        f"still waiting for a simulator on {self._reset_topic} "
+                        f"({now - start:.0f} s; {self._where}); {self._hint()}"
+                    )
+                continue
             raise SimulatorTimeoutError(
                 f"no simulator answered on {self._reset_topic} within {self.timeout_s:g} s "
                 f"({self._where}); {self._hint()}"
@@ -395,7 +431,9 @@ class LockstepClient:
                 s.get_publisher_count() > 0 for s in self._subs
             )
 
-        if not self._spin_until(connected, time.monotonic() + self.timeout_s):
+        if not self._spin_until(
+            connected, time.monotonic() + self.timeout_s, "the simulator's topics to connect"
+        ):
             raise SimulatorTimeoutError(
                 f"the simulator's reset service answers but its topics did not connect within "
                 f"{self.timeout_s:g} s ({self._where}); {self._hint()}"
@@ -413,6 +451,8 @@ class LockstepClient:
 
     def _retry(self) -> None:
         self.retries += 1
+        if self._unanswered_since is None:
+            self._unanswered_since = time.monotonic()
         self._node.get_logger().warning(
             "no complete answer from the simulator yet: sending the request again "
             f"({self.retries} resend(s) so far)",
@@ -423,6 +463,7 @@ class LockstepClient:
     def command(self, command: np.ndarray, t0: float, what: str) -> tuple:
         """Publish ``command`` and collect its answer; a lost message means the same command is
         sent again (in lockstep the simulator steps again with the same set-points)."""
+        self._unanswered_since = None
         self._prepare(strict=True)
         deadline = t0 + self.timeout_s
         msg = self._float_array()
@@ -432,6 +473,22 @@ class LockstepClient:
             final = attempt_end >= deadline
             self._pub.publish(msg)
             try:
-                return self._collect(command, attempt_end, what, final=final)
+                answer = self._collect(command, attempt_end, what, final=final)
             except _AttemptTimeout:
                 self._retry()
+                continue
+            self._answered(what)
+            return answer
+
+    def _answered(self, what: str) -> None:
+        """A request got its answer: after resends, say how long the simulator was away."""
+        if self._unanswered_since is None:
+            return
+        away = time.monotonic() - self._unanswered_since
+        self._unanswered_since = None
+        self.outages += 1
+        if away >= 1.0:
+            self._node.get_logger().info(
+                f"the simulator answered again ({what}) after {away:.1f} s without an answer; "
+                "carrying on"
+            )

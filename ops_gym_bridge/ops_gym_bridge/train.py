@@ -181,9 +181,10 @@ def _add_run_arguments(p) -> None:
     )
     p.add_argument(
         "--ros-timeout",
-        type=float,
-        default=5.0,
-        help="(ros) seconds to wait for the simulator before failing",
+        type=cli_args.non_negative_float,
+        default=0.0,
+        help="(ros) seconds to wait for an answer of the simulator before failing; 0 (default): "
+        "no limit, training waits through lost messages and outages and carries on",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--device", default="cpu", help="torch device")
@@ -481,7 +482,7 @@ def build_env(run: TrainRun) -> None:
             n_envs=args.n_envs,
             seed=args.seed,
             namespaces=args.namespace,
-            timeout_s=args.ros_timeout,
+            timeout_s=args.ros_timeout or None,
             episode_steps=args.episode_steps,
             overrides={"detector": args.detector},
             observation_options=observation_options(args),

@@ -129,8 +129,36 @@ def test_ctrl_c_while_training_through_the_bridge_saves_a_model(procs, tmp_path)
     proc.wait_for(r"\[train\] training started", timeout=60)
     proc.wait_for(r"\b([2-9]\d\d|\d{4,})/100000\b", timeout=90)  # learning under way
     proc.signal(signal.SIGINT)
-    assert proc.wait_exit(60) == 130
+    assert proc.wait_exit(60) == 130, proc.output
     assert "Traceback" not in proc.output, proc.output
     meta = read_metadata(out)
     assert meta["interrupted"] is True and meta["backend"] == "ros"
     assert load_policy(out).model.num_timesteps == meta["timesteps"] >= 200
+
+
+def test_training_waits_through_an_outage_and_carries_on(procs, tmp_path):
+    """The simulator frozen (SIGSTOP) for longer than the bounded waits of old (5 s): training
+    with the default --ros-timeout waits, says so, and finishes once the simulator is back."""
+    sim = start_sim(procs, stage=2, mode="easy", namespace="/outage", name="sim")
+    out = tmp_path / "through_outage"
+    proc = procs.start(
+        [
+            *executable("ops_gym_bridge", "train"),
+            *("--algo", "td3", "--stage", "2", "--mode", "easy", "--backend", "ros"),
+            *("--namespace", "/outage", "--timesteps", "600", "--out", str(out)),
+            *("--hyperparams", "learning_starts=100", "net_arch=[32,32]"),
+        ],
+        name="train",
+    )
+    proc.wait_for(r"\[train\] training started", timeout=60)
+    proc.wait_for(r"\b([2-9]\d\d)/600\b", timeout=90)
+    sim.signal_tree(signal.SIGSTOP)
+    try:
+        # Two throttled warnings (5 s apart): the outage outlasts the old 5 s deadline.
+        proc.wait_for("sending the request again", timeout=60, count=2)
+    finally:
+        sim.signal_tree(signal.SIGCONT)
+    assert proc.wait_exit(120) == 0, proc.output
+    assert "Traceback" not in proc.output, proc.output
+    assert "the simulator answered again" in proc.output, proc.output
+    assert read_metadata(out)["timesteps"] == 600
