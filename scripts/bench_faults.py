@@ -11,13 +11,19 @@ controller has settled on a clean link, each phase lasts ``--phase-s`` seconds:
 - an outage of 1 s and one of 30 s (the link drops everything), then ``--phase-s`` seconds on a
   clean link: the lock fraction of that window and the time from the link's return to the first
   reading >= 0.95 (``recovery``);
-- CPU load: ``--load`` busy processes on the machine (2 cores here), clean link.
+- CPU load: ``--load`` busy processes on the machine (2 cores here), clean link;
+- a flood: ``--flood-rate`` rejected commands per second (one delay too few) published on
+  ``ops/delay_cmd`` on host A for the whole phase; the simulator's steps/s are in the table;
+- viewers: ``--viewers`` subscribers of the trace (``ros2 topic echo /ops/intensity``, output
+  discarded) and the Foxglove bridge with ``--ws-clients`` WebSocket clients subscribed to every
+  channel, all on host A.
 
 The lock fraction is the share of the simulator's readings with P_N/P_max >= 0.95 in the
 phase. Prints the table and rewrites the "Faults" section of docs/benchmarks.md. Needs root and
 `ip` (iproute2). Usage (after `source setup.bash`, as root):
 python scripts/bench_faults.py [--controllers tracker spgd policy] [--stage 5] [--mode hard]
-[--phase-s 30] [--settle-s 30]
+[--phase-s 30] [--settle-s 30] [--phases clean loss5 loss20 outage1 outage30 load flood viewers]
+[--section '## Faults']
 """
 
 from __future__ import annotations
@@ -60,6 +66,56 @@ def record_main() -> None:
         rclpy.try_shutdown()
 
 
+def flood_main(rate: float, seconds: float, stage: int) -> None:
+    """Run on host A: publish rejected delay commands (one delay too few) at ``rate`` per s."""
+    import rclpy
+    from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DELAY_CMD
+    from std_msgs.msg import Float32MultiArray
+
+    rclpy.init()
+    node = rclpy.create_node("fault_flooder")
+    pub = node.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
+    msg = Float32MultiArray(data=[0.0] * max(stage - 1, 2))
+    time.sleep(1.0)  # discovery
+    sent, t0 = 0, time.monotonic()
+    while (now := time.monotonic()) - t0 < seconds:
+        due = min(int((now - t0) * rate), sent + 1000)
+        while sent < due:
+            pub.publish(msg)
+            sent += 1
+    print(f"flood: {sent} messages in {seconds:g} s ({sent / seconds:.0f}/s)", flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def ws_clients_main(port: int, clients: int) -> None:
+    """Run on host A: ``clients`` Foxglove WebSocket clients, each subscribed to every channel."""
+    import asyncio
+    import json
+
+    import websockets
+
+    async def client(k: int) -> None:
+        async with websockets.connect(
+            f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], max_size=None
+        ) as ws:
+            subscribed = set()
+            while True:
+                data = await ws.recv()
+                if isinstance(data, str):
+                    msg = json.loads(data)
+                    if msg.get("op") == "advertise":
+                        new = [c["id"] for c in msg["channels"] if c["id"] not in subscribed]
+                        subs = [{"id": 1000 * k + c, "channelId": c} for c in new]
+                        subscribed.update(new)
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+    async def run_all() -> None:
+        await asyncio.gather(*(client(k) for k in range(clients)))
+
+    asyncio.run(run_all())
+
+
 def readings(proc, t0: float, t1: float) -> list[tuple[float, float]]:
     out = []
     for line in proc.output.splitlines():
@@ -88,7 +144,7 @@ def controller_args(name: str, model: str) -> list[str]:
 
 
 def run_controller(name: str, args, tmp: Path) -> dict:
-    from ros_testing import ProcessGroup, RelayedHosts, executable
+    from ros_testing import ProcessGroup, RelayedHosts, executable, ros2_command
 
     results = {}
     with RelayedHosts(tmp, seed=1) as hosts:
@@ -104,12 +160,36 @@ def run_controller(name: str, args, tmp: Path) -> dict:
             ctrl.wait_for("simulator found", timeout=180)
             time.sleep(args.settle_s)  # the controller acquires on a clean link (not measured)
 
-            def phase(label, loss=0.0, down_s=0.0, load=0):
-                busy = []
+            def start_viewers() -> list:
+                echo = [*ros2_command(), "topic", "echo", "/ops/intensity"]
+                viewers = [
+                    hosts.a.start(group, echo, name=f"echo{k}", env=env)
+                    for k in range(args.viewers)
+                ]
+                if args.ws_clients:
+                    fox = [*executable("ops_sim_ros", "foxglove"), "--ros-args", "-p", "port:=0"]
+                    fox = hosts.a.start(group, fox, name="foxglove", env=env)
+                    port = fox.wait_for(r"ws://127\.0\.0\.1:(\d+)", timeout=60).group(1)
+                    fox.wait_for("serving /ops/intensity", timeout=60)
+                    ws = [sys.executable, __file__, "--ws-clients", str(args.ws_clients)]
+                    ws += ["--port", port]
+                    viewers += [fox, hosts.a.start(group, ws, name="ws_clients", env=env)]
+                return viewers
+
+            def phase(label, loss=0.0, down_s=0.0, load=0, flood=0.0, viewers=False):
+                busy, extra = [], []
                 if down_s:
                     hosts.set(down=True)
                     time.sleep(down_s)
                 hosts.set(loss=loss)
+                if viewers:
+                    extra = start_viewers()
+                    time.sleep(5.0)  # subscribed and streaming before the window opens
+                if flood:
+                    cmd = [sys.executable, __file__, "--flood", str(flood)]
+                    cmd += ["--seconds", str(args.phase_s + 1.0), "--stage", str(args.stage)]
+                    extra.append(hosts.a.start(group, cmd, name="flood", env=env))
+                    time.sleep(1.0)  # its discovery
                 t0 = time.time()
                 for _ in range(load):
                     busy.append(subprocess.Popen([sys.executable, "-c", "while True: pass"]))
@@ -119,18 +199,35 @@ def run_controller(name: str, args, tmp: Path) -> dict:
                     b.wait()
                 rows = readings(rec, t0, time.time())
                 row = {"fraction": lock_fraction(rows), "readings": len(rows)}
+                row["steps_per_s"] = len(rows) / max(time.time() - t0, 1e-9)
+                if flood:
+                    sent = re.search(r"\((\d+)/s\)", extra[-1].wait_for(r"flood: .*", 30)[0])
+                    row["flood_per_s"] = int(sent.group(1))
+                for proc in extra:
+                    proc.stop()
                 if down_s:
                     locked = [t for t, p in rows if p >= THRESHOLD]
                     row["recovery_s"] = locked[0] - t0 if locked else float("inf")
                 results[label] = row
                 print(f"[{name}] {label}: {row}", flush=True)
 
-            phase("clean")
-            phase("loss 5 %", loss=0.05)
-            phase("loss 20 %", loss=0.20)
-            phase("outage 1 s", down_s=1.0)
-            phase("outage 30 s", down_s=30.0)
-            phase(f"load ({args.load} busy processes)", load=args.load)
+            phases = {
+                "clean": lambda: phase("clean"),
+                "loss5": lambda: phase("loss 5 %", loss=0.05),
+                "loss20": lambda: phase("loss 20 %", loss=0.20),
+                "outage1": lambda: phase("outage 1 s", down_s=1.0),
+                "outage30": lambda: phase("outage 30 s", down_s=30.0),
+                "load": lambda: phase(f"load ({args.load} busy processes)", load=args.load),
+                "flood": lambda: phase(
+                    f"flood of {args.flood_rate:g} rejected commands/s", flood=args.flood_rate
+                ),
+                "viewers": lambda: phase(
+                    f"{args.viewers} trace subscribers + {args.ws_clients} Foxglove clients",
+                    viewers=True,
+                ),
+            }
+            for name_ in args.phases:
+                phases[name_]()
             for proc in group.started:
                 if proc.popen.poll() is not None:
                     results["exited"] = f"{proc.args[-1]} exited ({proc.popen.returncode})"
@@ -151,7 +248,9 @@ def table(all_results: dict) -> str:
             if row is None:
                 cells.append("–")
                 continue
-            cell = f"{row['fraction']:.3f} ({row['readings']})"
+            cell = f"{row['fraction']:.3f} ({row['readings']}, {row['steps_per_s']:.0f} steps/s)"
+            if "flood_per_s" in row:
+                cell += f", {row['flood_per_s']} commands/s sent"
             if "recovery_s" in row:
                 cell += f", back in {row['recovery_s']:.1f} s"
             cells.append(cell)
@@ -159,14 +258,14 @@ def table(all_results: dict) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
+def write_section(text: str, title: str = SECTION) -> None:
     path = REPO / "docs" / "benchmarks.md"
     doc = path.read_text()
-    start = doc.find(SECTION)
+    start = doc.find(title)
     if start < 0:
         doc = doc.rstrip("\n") + "\n\n" + text + "\n"
     else:
-        end = doc.find("\n## ", start + len(SECTION))
+        end = doc.find("\n## ", start + len(title))
         doc = doc[:start] + text + ("\n" + doc[end + 1 :] if end >= 0 else "\n")
     path.write_text(doc)
 
@@ -174,6 +273,19 @@ def write_section(text: str) -> None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--record", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--flood", type=float, help=argparse.SUPPRESS)
+    parser.add_argument("--seconds", type=float, default=10.0, help=argparse.SUPPRESS)
+    parser.add_argument("--port", type=int, help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--phases",
+        nargs="+",
+        default=["clean", "loss5", "loss20", "outage1", "outage30", "load"],
+        choices=["clean", "loss5", "loss20", "outage1", "outage30", "load", "flood", "viewers"],
+    )
+    parser.add_argument("--flood-rate", type=float, default=30000.0, help="commands/s")
+    parser.add_argument("--viewers", type=int, default=10, help="trace subscribers")
+    parser.add_argument("--ws-clients", type=int, default=5, help="Foxglove WebSocket clients")
+    parser.add_argument("--section", default=SECTION, help="section of docs/benchmarks.md")
     parser.add_argument("--controllers", nargs="+", default=["tracker", "spgd", "policy"])
     parser.add_argument("--stage", type=int, default=5)
     parser.add_argument("--mode", default="hard")
@@ -188,6 +300,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.record:
         record_main()
+        return 0
+    if args.flood is not None:
+        flood_main(args.flood, args.seconds, args.stage)
+        return 0
+    if args.port is not None:
+        ws_clients_main(args.port, args.ws_clients)
         return 0
     from ros_testing import netns_unavailable_reason
 
@@ -207,9 +325,10 @@ def main(argv=None) -> int:
     )
     exits = [f"{n}: {r['exited']}" for n, r in all_results.items() if "exited" in r]
     section = (
-        f"{SECTION}\n\nLock fraction (share of the simulator's readings with P_N/P_max >= "
-        f"{THRESHOLD}, readings in brackets) of each controller on host B driving a stage "
-        f"{args.stage} {args.mode} simulator on host A through scripts/fault_relay.py, "
+        f"{args.section}\n\nLock fraction (share of the simulator's readings with P_N/P_max >= "
+        f"{THRESHOLD}, readings and the simulator's steps/s in brackets) of each controller on "
+        f"host B driving a stage {args.stage} {args.mode} simulator on host A through "
+        "scripts/fault_relay.py, "
         f"{args.phase_s:g} s per condition after {args.settle_s:g} s on a clean link; after an "
         "outage, the window starts when the link returns and `back in` is the time to the "
         f"first reading >= {THRESHOLD}. Command: `{cmd.strip()}` "
@@ -222,7 +341,7 @@ def main(argv=None) -> int:
     )
     print(section)
     if not args.no_docs:
-        write_section(section)
+        write_section(section, args.section)
     return 0
 
 

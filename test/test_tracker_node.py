@@ -6,7 +6,7 @@ import signal
 
 import numpy as np
 import pytest
-from ros_testing import assert_no_traceback
+from ros_testing import assert_no_traceback, run_ros2
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
 
@@ -20,7 +20,7 @@ def start(procs, name, pkg, exe, *params):
 
 @pytest.mark.parametrize("lockstep", ["false", "true"])
 def test_tracker_locks_a_medium_n5_stacker_within_1000_readings(procs, observer, lockstep):
-    start(
+    sim = start(
         procs,
         "sim",
         "ops_sim_ros",
@@ -46,6 +46,16 @@ def test_tracker_locks_a_medium_n5_stacker_within_1000_readings(procs, observer,
     )
     assert observer.count("power") - before <= 1000
     tracker.wait_for(r"reading \d+ \(locked;[^)\n]*\): P_N/P_max = 0\.9", timeout=10)
+    # Its published status tells the truth: locked from the readings, starved when they stop.
+    tracker.wait_for(r"loop status: \w+ -> locked \(the last 10 readings", timeout=10)
+    sim.signal_tree(signal.SIGSTOP)
+    try:
+        tracker.wait_for(r"loop status: \w+ -> starved \(no reading for more than", timeout=10)
+        echo = run_ros2("topic", "echo", "--once", "/ops/controller/status", timeout=30)
+        assert "data: starved" in echo.stdout, echo.stdout + echo.stderr
+    finally:
+        sim.signal_tree(signal.SIGCONT)
+    tracker.wait_for(r"loop status: starved -> (searching|locked)", timeout=30)
     tracker.signal(signal.SIGTERM)
     assert tracker.wait_exit(15) == 0  # a clean exit on SIGTERM
     assert_no_traceback(tracker.output)

@@ -42,7 +42,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
-from . import controller_params
+from . import controller_params, loop_status
 from .command_tracker import CommandTracker
 
 LOOP_PARAMS = [
@@ -57,6 +57,7 @@ LOOP_PARAMS = [
     controller_params.TIMEOUT,
     ParamSpec("seed", -1, "random seed of the controller; -1 draws one", low=-1, high=2**31 - 1),
     controller_params.LOG_PERIOD,
+    *loop_status.PARAMS,
 ]
 #: The parameters a running loop applies at once; the others are fixed after start.
 LIVE_PARAMS = ("rate_hz", "timeout_s")
@@ -80,6 +81,7 @@ class ControllerLoopNode(Node):
         self.readings = 0
         self._commands = CommandTracker(v["timeout_s"])
         self._guard = MessageGuard(self)
+        self._status = loop_status.StatusReporter(self, v)
         self._trace = None  # (flat trace, samples per slot) of the latest ops/intensity
         self._delays = None  # the latest ops/delays
         self._next_allowed = 0.0
@@ -184,12 +186,14 @@ class ControllerLoopNode(Node):
         self.readings += 1
         now = time.monotonic()
         self._last_reading_at = now
+        self._status.observe(power, now)
         if now >= self._next_allowed:
             self._next_allowed = now + self._min_period
             self._send()
 
     def _watchdog(self):
         now = time.monotonic()
+        self._status.check(now)
         if self.ctrl is None:
             if self._delays is not None and self._trace is None and now >= self._next_allowed:
                 # A lockstep simulator published its trace before we listened: ask for a step

@@ -41,7 +41,7 @@ from ops_sim_ros.ros_interface import (
 from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
-from . import controller_params
+from . import controller_params, loop_status
 from .command_tracker import CommandTracker
 from .policy_io import (
     PolicyLoadError,
@@ -63,6 +63,7 @@ PARAMS = [
     ),
     controller_params.TIMEOUT,
     controller_params.LOG_PERIOD,
+    *loop_status.PARAMS,
 ]
 
 
@@ -86,6 +87,7 @@ class PolicyNode(Node):
 
         self._tracker = CommandTracker(v["timeout_s"])
         self._guard = MessageGuard(self)
+        self._status = loop_status.StatusReporter(self, v)
         self._delays: np.ndarray | None = None
         self._trace: tuple[np.ndarray, int] | None = None
         self._steps = 0
@@ -132,8 +134,15 @@ class PolicyNode(Node):
 
     def _on_actual(self, msg: Float32MultiArray):
         """The simulator-only oracle of the applied delays (published right after ops/delays)."""
-        actual = np.asarray(msg.data, dtype=np.float64)
-        if self._tracker.matched and actual.size == self._spec.stage and np.isfinite(actual).all():
+        actual = self._guard.take(TOPIC_DELAYS_ACTUAL, delays_from_msg, msg)
+        if actual is None:
+            return
+        if actual.size != self._spec.stage:
+            self._guard.drop(
+                TOPIC_DELAYS_ACTUAL, f"{actual.size} delays; the model drives {self._spec.stage}"
+            )
+            return
+        if self._tracker.matched:
             self._actual = actual
             waiting, self._waiting = self._waiting, None
             if waiting is not None:
@@ -166,6 +175,7 @@ class PolicyNode(Node):
         command = self._delays + action * self._max_step_fs
         self._last_power = power
         self._steps += 1
+        self._status.observe(power, time.monotonic())
         self._trace = None
         self._send(command)
 
@@ -174,6 +184,7 @@ class PolicyNode(Node):
 
     def _watchdog(self):
         now = time.monotonic()
+        self._status.check(now)
         if self._tracker.overdue(now):
             self.get_logger().warning(
                 "no reading for the last command: re-sending (simulator slow or restarted?)",

@@ -20,6 +20,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 from std_srvs.srv import Trigger
 
+from .command_inbox import CommandInbox
 from .config import DETECTORS, LIMITS, MAX_STAGE, MODES, SPLITS, make_config
 from .node_params import ParamSpec, check_change, coerce, declare_all
 from .ros_interface import (
@@ -153,7 +154,9 @@ class SimNode(Node):
             Float32MultiArray, TOPIC_DELAYS_ACTUAL, QOS_RELIABLE
         )
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
-        self.create_subscription(Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE)
+        self._cmd_sub = None  # lockstep: a callback per command
+        self._inbox = None  # free-running: commands taken at each step (command_inbox)
+        self._rejections_said_at = float("-inf")
         self.create_service(Trigger, SERVICE_RESET, self._on_reset)
 
         self._result = self._sim.reset()
@@ -163,6 +166,7 @@ class SimNode(Node):
         self._timer = None
         self._diag_timer = None
         self._restart_timers()
+        self._set_command_intake()
         self.get_logger().info(
             f"stage={self._config.stage} mode={self._config.mode} split={self._config.split} "
             f"detector={self._config.detector} seed={self.seed} "
@@ -185,6 +189,8 @@ class SimNode(Node):
         )
 
     def _step(self):
+        if self._inbox is not None:
+            self._take_commands()
         self._result = self._sim.step_setpoints(self._command[None, :])
         self._steps += 1
         self._publish()
@@ -245,16 +251,58 @@ class SimNode(Node):
         self._pub_diag.publish(msg)
 
     # ------------------------------------------------------------------ inputs
+    def _set_command_intake(self):
+        """Lockstep: a callback per command, each one steps. Free-running: the commands that
+        queued since the last step are taken at the next one (CommandInbox), so a flood of
+        messages costs the loop next to nothing."""
+        lockstep = self._values["lockstep"]
+        if lockstep and self._cmd_sub is None:
+            if self._inbox is not None:
+                self._take_commands()
+                self._inbox.destroy()
+                self._inbox = None
+            self._cmd_sub = self.create_subscription(
+                Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE
+            )
+        elif not lockstep and self._inbox is None:
+            if self._cmd_sub is not None:
+                self.destroy_subscription(self._cmd_sub)
+                self._cmd_sub = None
+            self._inbox = CommandInbox(self, TOPIC_DELAY_CMD, self._command_problem)
+
+    def _command_problem(self, msg: Float32MultiArray) -> str | None:
+        return check_layout(msg) or check_command(list(msg.data), self._config.stage)
+
+    def _take_commands(self):
+        msg = self._inbox.take_latest()
+        rejected = self._inbox.rejected
+        now = time.monotonic()
+        if rejected and now - self._rejections_said_at >= _WARN_PERIOD_S:
+            total = sum(rejected.values())
+            problems = "; ".join(f"{n} x {problem}" for problem, n in rejected.items())
+            self.get_logger().warning(
+                f"rejected {total} delay command(s) in the last {_WARN_PERIOD_S:g} s or so "
+                f"({problems}); set-points unchanged"
+            )
+            rejected.clear()
+            self._rejections_said_at = now
+        if msg is not None:
+            self._apply_command(msg)
+
     def _on_command(self, msg: Float32MultiArray):
-        values = list(msg.data)
-        problem = check_layout(msg) or check_command(values, self._config.stage)
+        problem = self._command_problem(msg)
         if problem:
             self.get_logger().warning(
                 f"rejected delay command: {problem}; set-points unchanged",
                 throttle_duration_sec=_WARN_PERIOD_S,
             )
             return
-        command = np.asarray(values, dtype=np.float64)
+        self._apply_command(msg)
+        if self._values["lockstep"]:
+            self._step()
+
+    def _apply_command(self, msg: Float32MultiArray):
+        command = np.asarray(msg.data, dtype=np.float64)
         limit = self._config.actuator_range_fs
         if np.any(np.abs(command) > limit):
             self.get_logger().warning(
@@ -263,8 +311,6 @@ class SimNode(Node):
             )
             command = np.clip(command, -limit, limit)
         self._command = command
-        if self._values["lockstep"]:
-            self._step()
 
     def _on_reset(self, request, response):
         self._result = self._sim.reset()
@@ -301,6 +347,7 @@ class SimNode(Node):
             self._sim = self._sim.with_config(config)
         if timers_changed:
             self._restart_timers()
+            self._set_command_intake()
         return SetParametersResult(successful=True)
 
 

@@ -1,0 +1,112 @@
+"""Delay commands of a free-running simulator, read once per step instead of once per message.
+
+A free-running simulator applies the latest valid command at its next step; what arrives in
+between only matters through that one. With a subscription callback, rclpy's executor runs
+Python for every message (~tens of microseconds each), so a flood on ``ops/delay_cmd`` - one
+careless script at 30,000 messages/s - takes the simulator's CPU and its step rate with it
+(issue 21: 80 steps/s, lock 26 %). Here the subscription belongs to a callback group that the
+executor never waits on; at each step :meth:`CommandInbox.take_latest` takes what queued in the
+DDS reader (serialized: a message is decoded once, not once per copy), checks each, and
+keeps the newest valid one. Identical serialized messages share one verdict, so a flood of one
+rejected message costs a dictionary lookup each. The reader keeps ``depth`` messages: a valid
+command is kept through a flood of up to ``depth`` messages per step (1000 per 10 ms step).
+
+A lockstep simulator steps on each command, so it keeps its callback (``sim_node``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from rclpy.callback_groups import CallbackGroup
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from std_msgs.msg import Float32MultiArray
+
+#: Messages the reader keeps between two steps (KEEP_LAST: older ones are dropped by DDS).
+INBOX_DEPTH = 1000
+#: Verdicts remembered per distinct serialized message (a flood repeats one message).
+_VERDICTS_KEPT = 256
+
+
+class _NeverWaited(CallbackGroup):
+    """A callback group the executor leaves out of its wait set: its entities are polled."""
+
+    def can_execute(self, entity) -> bool:
+        return False
+
+    def beginning_execution(self, entity) -> bool:
+        return False
+
+    def ending_execution(self, entity) -> None:
+        pass
+
+
+class CommandInbox:
+    """``check(msg)`` returns a problem (str) or None; ``take_latest`` returns the newest valid
+    message since the last call (or None) and counts the rejected ones by problem."""
+
+    def __init__(
+        self,
+        node: Node,
+        topic: str,
+        check: Callable[[Float32MultiArray], str | None],
+        depth: int = INBOX_DEPTH,
+    ):
+        self._node = node
+        self._check = check
+        qos = QoSProfile(
+            depth=depth, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE
+        )
+        self.subscription = node.create_subscription(
+            Float32MultiArray,
+            topic,
+            lambda _msg: None,  # never called: the executor does not wait on this group
+            qos,
+            callback_group=_NeverWaited(),
+            raw=True,
+        )
+        self._verdicts: dict[bytes, str | None] = {}
+        self.rejected: dict[str, int] = {}  # problem -> count since the caller last cleared it
+        self.taken = 0  # messages taken so far
+
+    def _verdict(self, raw: bytes) -> tuple[str | None, Float32MultiArray | None]:
+        known = self._verdicts.get(raw)  # None: unknown, or valid (then it is decoded)
+        if known is not None:
+            return known, None
+        try:
+            msg = deserialize_message(raw, Float32MultiArray)
+        except Exception as exc:  # a malformed serialization: rejected like any bad message
+            problem = f"undecodable message ({type(exc).__name__})"
+            msg = None
+        else:
+            problem = self._check(msg)
+        if len(self._verdicts) >= _VERDICTS_KEPT:
+            self._verdicts.clear()
+        self._verdicts[raw] = problem
+        return problem, msg
+
+    def _take_all(self) -> list[bytes]:
+        handle, raw = self.subscription.handle, []
+        with handle:
+            while True:
+                got = handle.take_message(Float32MultiArray, True)
+                if got is None:
+                    return raw
+                raw.append(got[0])
+
+    def take_latest(self) -> Float32MultiArray | None:
+        queued = self._take_all()
+        self.taken += len(queued)
+        latest = None
+        for raw in queued:
+            problem, msg = self._verdict(raw)
+            if problem is None:
+                latest = msg
+            else:
+                self.rejected[problem] = self.rejected.get(problem, 0) + 1
+        return latest
+
+    def destroy(self) -> None:
+        self._node.destroy_subscription(self.subscription)
