@@ -29,6 +29,7 @@ python scripts/bench_faults.py [--controllers tracker spgd policy] [--stage 5] [
 from __future__ import annotations
 
 import argparse
+import contextlib
 import platform
 import re
 import subprocess
@@ -111,7 +112,9 @@ def ws_clients_main(port: int, clients: int) -> None:
                         await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     async def run_all() -> None:
-        await asyncio.gather(*(client(k) for k in range(clients)))
+        # Until the bridge stops (the phase is over).
+        with contextlib.suppress(websockets.exceptions.ConnectionClosed):
+            await asyncio.gather(*(client(k) for k in range(clients)))
 
     asyncio.run(run_all())
 
@@ -203,7 +206,7 @@ def run_controller(name: str, args, tmp: Path) -> dict:
                 if flood:
                     sent = re.search(r"\((\d+)/s\)", extra[-1].wait_for(r"flood: .*", 30)[0])
                     row["flood_per_s"] = int(sent.group(1))
-                for proc in extra:
+                for proc in reversed(extra):  # clients before the servers they use
                     proc.stop()
                 if down_s:
                     locked = [t for t, p in rows if p >= THRESHOLD]
