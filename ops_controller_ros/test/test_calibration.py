@@ -39,7 +39,7 @@ def test_detector_gain_and_offset_are_estimated_while_locked(seed):
 def test_without_calibration_a_detector_off_by_thirty_percent_is_not_acquired():
     """The reason for the calibration: with gain x0.7 the uncalibrated fit never explains the
     readings, so the tracker never locks (why the test above would fail without it)."""
-    ctl, power = _run({"detector_gain": 0.7}, 120, 2001, TrackerParams(calibrate=False))
+    ctl, power = _run({"detector_gain": 0.7}, 80, 2001, TrackerParams(calibrate=False))
     assert not ctl.locked and power[-50:].mean() < 0.9
 
 

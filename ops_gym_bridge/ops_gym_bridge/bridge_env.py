@@ -59,7 +59,7 @@ class RosOpsEnv(gym.Env):
         split: str = "train",
         namespace: str = "",
         domain_id: int | None = None,
-        timeout_s: float | None = 5.0,
+        timeout_s: float | None = None,
         max_episode_steps: int = 200,
         action_type: str = "increment",
         observation_options: dict[str, Any] | None = None,

@@ -71,7 +71,7 @@ class LockstepClient:
         mode: str,
         namespace: str = "",
         domain_id: int | None = None,
-        timeout_s: float | None = 5.0,
+        timeout_s: float | None = None,
         retry_after_s: float | None = 1.0,
         node_name: str | None = None,
         with_actual: bool = False,
