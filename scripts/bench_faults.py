@@ -157,9 +157,12 @@ def run_controller(name: str, args, tmp: Path) -> dict:
             sim = [*executable("ops_sim_ros", "sim"), "--ros-args"]
             for p in (f"stage:={args.stage}", f"mode:={args.mode}", "seed:=11", "rate_hz:=100.0"):
                 sim += ["-p", p]
-            hosts.a.start(group, sim, name="sim", env=env).wait_for("stage=", timeout=120)
+            # --nice: the loop's processes (simulator and controller) get that priority.
+            prio = ["nice", "-n", str(args.nice)] if args.nice else []
+            hosts.a.start(group, [*prio, *sim], name="sim", env=env).wait_for("stage=", 120)
             rec = hosts.a.start(group, [sys.executable, __file__, "--record"], name="rec", env=env)
-            ctrl = hosts.b.start(group, controller_args(name, args.model), name=name, env=env)
+            ctrl_args = [*prio, *controller_args(name, args.model)]
+            ctrl = hosts.b.start(group, ctrl_args, name=name, env=env)
             ctrl.wait_for("simulator found", timeout=180)
             time.sleep(args.settle_s)  # the controller acquires on a clean link (not measured)
 
@@ -289,6 +292,9 @@ def main(argv=None) -> int:
     parser.add_argument("--viewers", type=int, default=10, help="trace subscribers")
     parser.add_argument("--ws-clients", type=int, default=5, help="Foxglove WebSocket clients")
     parser.add_argument("--section", default=SECTION, help="section of docs/benchmarks.md")
+    parser.add_argument(
+        "--nice", type=int, default=0, help="niceness of the simulator and the controller"
+    )
     parser.add_argument("--controllers", nargs="+", default=["tracker", "spgd", "policy"])
     parser.add_argument("--stage", type=int, default=5)
     parser.add_argument("--mode", default="hard")
