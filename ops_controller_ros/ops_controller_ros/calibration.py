@@ -80,6 +80,20 @@ class ModelCalibration:
         y[:, :-1] = (y[:, :-1] - self.offset) / self.gain
         return y
 
+    def detector_state(self) -> tuple:
+        """What :meth:`fit_detector` changes, for :meth:`restore_detector`."""
+        return self.gain, self.offset, self._line.copy()
+
+    def restore_detector(self, state: tuple) -> None:
+        self.gain, self.offset, self._line = state[0], state[1], state[2].copy()
+
+    def reset_detector(self) -> bool:
+        """Back to the nominal detector (gain 1, offset 0); True if that changed anything."""
+        changed = (self.gain, self.offset) != (1.0, 0.0)
+        self.gain, self.offset = 1.0, 0.0
+        self._line = np.zeros(5)
+        return changed
+
     def fit_detector(self, predicted: np.ndarray, raw: np.ndarray) -> bool:
         """Fit gain and offset to one window (model-predicted and detected readings, (K, S + 1));
         False (nothing changed) where the window does not determine a plausible line."""

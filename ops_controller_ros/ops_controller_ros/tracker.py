@@ -79,6 +79,10 @@ class TrackerParams:
     calibrate_optics: bool = False  # estimate wavelength and pulse width too (experimental)
     calibration_every: int = 25  # tracking readings between updates of wavelength and pulse width
     calibration_memory: float = 500.0  # readings over which the calibration statistics are kept
+    # Readings without lock after which the detector's gain and offset go back to nominal: a fit
+    # to a wrong estimate, or to readings that did not belong together (a starved machine), must
+    # not keep the tracker from ever locking again (seen: gain 0.56 on a true 1.0).
+    calibration_reset_after: int = 500
 
     def __post_init__(self):
         checks = (
@@ -98,6 +102,7 @@ class TrackerParams:
             ("step_budget_ms", self.step_budget_ms >= 0, ">= 0"),
             ("calibration_every", self.calibration_every >= 1, ">= 1"),
             ("calibration_memory", self.calibration_memory >= 1, ">= 1"),
+            ("calibration_reset_after", self.calibration_reset_after >= 1, ">= 1"),
         )
         for name, ok, allowed in checks:
             if not ok:
@@ -146,6 +151,8 @@ class PhaseTracker:
         self._bad_fits = 0
         self._noise_var = None  # detector noise variance measured from a repeated reading
         self._tick = 0
+        self._unlocked_readings = 0  # readings since the tracker last held a lock
+        self.calibration_resets = 0
         self._search = None  # the global search under way (a generator), if any
         self.last_power = float("nan")
 
@@ -206,6 +213,11 @@ class PhaseTracker:
             self._track()
         elif len(self._history) == self.params.window or self._search is not None:
             self._search_step()
+        self._unlocked_readings = 0 if self.locked else self._unlocked_readings + 1
+        if self._unlocked_readings >= self.params.calibration_reset_after:
+            self._unlocked_readings = 0
+            if self.calibration.reset_detector():
+                self.calibration_resets += 1
 
     # ------------------------------------------------------------------ estimation
     def _window(self, readings=None, raw: bool = False):

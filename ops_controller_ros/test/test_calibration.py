@@ -53,3 +53,17 @@ def test_fit_detector_recovers_a_line_and_refuses_a_flat_window():
     flat = np.full((4, 6), 0.3)
     assert not cal.fit_detector(flat, flat)
     assert cal.gain == pytest.approx(0.8)  # unchanged
+
+
+def test_a_detector_fit_that_never_locks_is_forgotten():
+    """A gain fitted to readings that did not belong together must not keep the tracker unlocked
+    for good: after calibration_reset_after readings without lock it is back to nominal."""
+    ctl, _ = _run({}, 60, 2003, TrackerParams(calibration_reset_after=30))
+    assert ctl.locked
+    ctl.calibration.gain, ctl.calibration.offset = 0.56, 0.005  # a corrupted estimate
+    ctl.estimate = None  # lost
+    for _ in range(40):
+        ctl.command()
+        ctl.observe(0.1, np.full(ctl.stacker.num_slots, 0.1))
+    assert ctl.calibration_resets >= 1
+    assert ctl.calibration.estimates()["detector_gain"] != 0.56
