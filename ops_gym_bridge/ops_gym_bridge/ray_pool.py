@@ -206,7 +206,15 @@ def _unpack(data: bytes, directory: Path) -> None:
     shutil.rmtree(incoming, ignore_errors=True)
     incoming.mkdir(parents=True)
     with tarfile.open(fileobj=io.BytesIO(data)) as tar:
-        tar.extractall(incoming, filter="data")
+        if hasattr(tarfile, "data_filter"):
+            tar.extractall(incoming, filter="data")
+        else:  # Python before 3.11.4 (e.g. Debian 12's 3.11.2) has no extraction filters
+            for member in tar.getmembers():
+                name = Path(member.name)
+                plain = member.isfile() or member.isdir()
+                if name.is_absolute() or ".." in name.parts or not plain:
+                    raise ValueError(f"refusing to unpack {member.name!r} from a run's archive")
+            tar.extractall(incoming)  # every member checked above
     if directory.exists():
         shutil.rmtree(directory)
     os.replace(incoming, directory)
