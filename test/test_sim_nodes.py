@@ -356,12 +356,16 @@ def test_a_flood_of_rejected_commands_keeps_the_valid_one_among_them(procs, obse
     observer.wait_count("power", 20)
     n0 = observer.count("power")
     good = [0.25, -0.5, 0.75]
+    # 3000 per second, paced: the simulator keeps the last INBOX_DEPTH messages between two steps,
+    # so the valid one survives even a step delayed by a second on a loaded machine.
     sent, t0 = 0, time.monotonic()
-    while time.monotonic() - t0 < 3.0:
-        observer.send([1.0, 2.0])  # stage 3 wants 3 delays: rejected
-        sent += 1
-        if sent == 2000:
-            observer.send(good)
+    while (elapsed := time.monotonic() - t0) < 3.0:
+        while sent < 3000 * elapsed:
+            observer.send([1.0, 2.0])  # stage 3 wants 3 delays: rejected
+            sent += 1
+            if sent == 2000:
+                observer.send(good)
+        time.sleep(0.001)
     assert sent > 4000
     observer.wait_until(
         lambda: np.allclose(observer.last("delays"), good, atol=1e-5),

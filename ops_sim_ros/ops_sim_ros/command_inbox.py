@@ -9,7 +9,7 @@ executor never waits on; at each step :meth:`CommandInbox.take_latest` takes wha
 DDS reader (serialized: a message is decoded once, not once per copy), checks each, and
 keeps the newest valid one. Identical serialized messages share one verdict, so a flood of one
 rejected message costs a dictionary lookup each. The reader keeps ``depth`` messages: a valid
-command is kept through a flood of up to ``depth`` messages per step (1000 per 10 ms step).
+command is kept through a flood of up to ``depth`` messages between two steps (4000).
 
 A lockstep simulator steps on each command, so it keeps its callback (``sim_node``).
 """
@@ -25,7 +25,7 @@ from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float32MultiArray
 
 #: Messages the reader keeps between two steps (KEEP_LAST: older ones are dropped by DDS).
-INBOX_DEPTH = 1000
+INBOX_DEPTH = 4000
 #: Verdicts remembered per distinct serialized message (a flood repeats one message).
 _VERDICTS_KEPT = 256
 
