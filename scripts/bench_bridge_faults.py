@@ -51,16 +51,16 @@ def wait_steps(proc, total: int, target: int, timeout: float) -> float:
 
 
 def run(args, tmp: Path) -> dict:
-    from ros_testing import ProcessGroup, RelayedHosts, executable
+    from ros_testing import ProcessGroup, RelayedHosts, executable, sim_command
 
     rows: dict = {}
     with RelayedHosts(tmp, seed=2) as hosts:
         group = ProcessGroup(tmp)
         try:
             env = hosts.env()
-            sim = [*executable("ops_sim_ros", "sim"), "--ros-args"]
-            for p in (f"stage:={args.stage}", f"mode:={args.mode}", "seed:=5", "lockstep:=true"):
-                sim += ["-p", p]
+            sim = sim_command(
+                f"stage:={args.stage}", f"mode:={args.mode}", "seed:=5", "lockstep:=true"
+            )
             hosts.a.start(group, sim, name="sim", env=env).wait_for("stage=", timeout=120)
             total = 4 * args.steps
             train = [*executable("ops_gym_bridge", "train"), "--backend", "ros"]

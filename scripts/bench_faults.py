@@ -147,16 +147,16 @@ def controller_args(name: str, model: str) -> list[str]:
 
 
 def run_controller(name: str, args, tmp: Path) -> dict:
-    from ros_testing import ProcessGroup, RelayedHosts, executable, ros2_command
+    from ros_testing import ProcessGroup, RelayedHosts, executable, ros2_command, sim_command
 
     results = {}
     with RelayedHosts(tmp, seed=1) as hosts:
         group = ProcessGroup(tmp)
         try:
             env = hosts.env()
-            sim = [*executable("ops_sim_ros", "sim"), "--ros-args"]
-            for p in (f"stage:={args.stage}", f"mode:={args.mode}", "seed:=11", "rate_hz:=100.0"):
-                sim += ["-p", p]
+            sim = sim_command(
+                f"stage:={args.stage}", f"mode:={args.mode}", "seed:=11", "rate_hz:=100.0"
+            )
             # --nice: the loop's processes (simulator and controller) get that priority.
             prio = ["nice", "-n", str(args.nice)] if args.nice else []
             hosts.a.start(group, [*prio, *sim], name="sim", env=env).wait_for("stage=", 120)

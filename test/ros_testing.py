@@ -25,6 +25,14 @@ def executable(package: str, name: str) -> list[str]:
     return [*ros2_command(), "run", package, name]
 
 
+def sim_command(*params: str) -> list[str]:
+    """``ops_sim`` with parameters (``"stage:=3"``, ...) as a user runs it."""
+    args = [*executable("ops_sim_ros", "sim"), "--ros-args"]
+    for p in params:
+        args += ["-p", p]
+    return args
+
+
 def start_sim(
     group: ProcessGroup,
     stage: int = 3,
@@ -35,18 +43,12 @@ def start_sim(
     name: str = "sim",
 ):
     """Start ``ops_sim`` and wait until it runs."""
-    args = [
-        *executable("ops_sim_ros", "sim"),
-        "--ros-args",
-        "-p",
+    args = sim_command(
         f"stage:={stage}",
-        "-p",
         f"mode:={mode}",
-        "-p",
         f"lockstep:={'true' if lockstep else 'false'}",
-        "-p",
         f"seed:={seed}",
-    ]
+    )
     if namespace:
         args += ["-r", f"__ns:={namespace}"]
     proc = group.start(args, name=name)

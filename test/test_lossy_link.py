@@ -22,6 +22,7 @@ from ros_testing import (
     assert_no_traceback,
     executable,
     netns_unavailable_reason,
+    sim_command,
 )
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
@@ -66,9 +67,7 @@ def _wait(condition, timeout: float, what: str, *procs):
 
 def test_spgd_keeps_its_lock_through_loss_and_comes_back_after_an_outage(hosts, procs):
     env = hosts.env()
-    sim_args = [*executable("ops_sim_ros", "sim"), "--ros-args"]
-    for p in ("stage:=3", "mode:=easy", "seed:=7", "rate_hz:=100.0"):
-        sim_args += ["-p", p]
+    sim_args = sim_command("stage:=3", "mode:=easy", "seed:=7", "rate_hz:=100.0")
     sim = hosts.a.start(procs, sim_args, name="sim", env=env)
     sim.wait_for("stage=3 mode=easy", timeout=60)
     args = [*executable("ops_controller_ros", "spgd"), "--ros-args", "-p", "seed:=7"]
