@@ -61,7 +61,8 @@ from .calibration import ModelCalibration
 class TrackerParams:
     window: int = 7  # readings per fit (>= 2: the phase diversity)
     acquire_dither_cycles: float = 0.02  # excursion per stage while acquiring (actuator size)
-    hold_dither_cycles: float = 0.012  # excursion while tracking
+    hold_dither_cycles: float = 0.012  # excursion while tracking (its length over the stages)
+    hold_pattern: str = "all"  # excursion: one stage at a time, or all at once (Hadamard)
     candidates: int = 512  # random delay vectors scored by the global search
     refine: int = 8  # best candidates refined by Levenberg-Marquardt
     iterations: int = 12  # LM iterations of a global refinement
@@ -72,6 +73,16 @@ class TrackerParams:
     lost_tolerance: float = 1e-5  # mean squared residual of a tracking fit that counts as lost
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
     misses: int = 3  # bad fits in a row before recovering
+    # Knots of the drift (a stage's slope changes): a tracking fit whose residual exceeds
+    # knot_tolerance is tried again with one stage's drift prior widened to knot_prior_cycles
+    # (each stage in turn; 0: never); a hypothesis is taken if it divides the residual by
+    # knot_gain.
+    knot_tolerance: float = 1e-6
+    knot_prior_cycles: float = 0.03
+    knot_gain: float = 3.0
+    knot_start_cycles: float = 0.02  # the knot fits start this far off the prediction
+    knot_walk_sigmas: float = 2.0  # a path step this far off the drift (walk stds) tries knots
+    knot_penalty: float = 4.0  # a knot hypothesis wins if its cost + this is the lowest
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
     acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
     step_budget_ms: float = 0.0  # global search per reading (0: all in the reading that starts it)
@@ -89,6 +100,7 @@ class TrackerParams:
             ("window", self.window >= 2, ">= 2"),
             ("acquire_dither_cycles", 0 < self.acquire_dither_cycles <= 0.25, "in (0, 0.25]"),
             ("hold_dither_cycles", 0 <= self.hold_dither_cycles <= 0.25, "in [0, 0.25]"),
+            ("hold_pattern", self.hold_pattern in ("one", "all"), "one or all"),
             ("candidates", self.candidates >= 1, ">= 1"),
             ("refine", 1 <= self.refine <= self.candidates, "in [1, candidates]"),
             ("iterations", self.iterations >= 1, ">= 1"),
@@ -98,6 +110,9 @@ class TrackerParams:
             ("residual_tolerance", self.residual_tolerance > 0, "> 0"),
             ("detector_noise", self.detector_noise >= 0, ">= 0"),
             ("misses", self.misses >= 1, ">= 1"),
+            ("knot_tolerance", self.knot_tolerance > 0, "> 0"),
+            ("knot_prior_cycles", self.knot_prior_cycles >= 0, ">= 0"),
+            ("knot_gain", self.knot_gain >= 1, ">= 1"),
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
             ("step_budget_ms", self.step_budget_ms >= 0, ">= 0"),
             ("calibration_every", self.calibration_every >= 1, ">= 1"),
@@ -153,6 +168,9 @@ class PhaseTracker:
         self._tick = 0
         self._unlocked_readings = 0  # readings since the tracker last held a lock
         self.calibration_resets = 0
+        self.knots = 0  # knot hypotheses taken while tracking
+        self._path = np.zeros((0, self.stage))
+        self._objective = float("nan")
         self._search = None  # the global search under way (a generator), if any
         self.last_power = float("nan")
 
@@ -180,10 +198,7 @@ class PhaseTracker:
                 signs = self._rng.choice((-1.0, 1.0), size=self.stage)
                 u = self._base + p.acquire_dither_cycles * signs
         else:
-            u = self._base.copy()
-            j = self._tick % self.stage
-            sign = 1.0 if (self._tick // self.stage) % 2 == 0 else -1.0
-            u[j] += sign * self._hold_dither()
+            u = self._base + self._hold_dither() * self._excursion(self._tick)
         u = np.clip(u, -self.range_cycles, self.range_cycles)
         self._last_command = u
         return u * self.period_fs
@@ -232,12 +247,30 @@ class PhaseTracker:
         age = np.arange(len(u) - 1, -1, -1, dtype=np.float64)  # steps before the latest
         return u, y, age
 
+    def _excursion(self, tick: int) -> np.ndarray:
+        """The tracking excursion's direction at ``tick`` (N,): ``one`` stage at a time,
+        alternating in sign; ``all``: every stage at once, the signs of a row of a Hadamard
+        matrix (the rows cycle, so every stage's sign is seen against every other's)."""
+        n = self.stage
+        out = np.zeros(n)
+        if self.params.hold_pattern == "one":
+            out[tick % n] = 1.0 if (tick // n) % 2 == 0 else -1.0
+            return out
+        size = 1 << max(n, 1).bit_length()  # a Hadamard order > n (Sylvester)
+        row = tick % size
+        cols = np.arange(1, n + 1)  # skip the all-ones column
+        bits = np.array([bin(row & c).count("1") & 1 for c in cols])
+        return (1.0 - 2.0 * bits) / np.sqrt(n)
+
     def _hold_dither(self) -> float:
         """The tracking excursion: ``hold_dither_cycles``, larger on a noisy detector (a reading
         near the optimum is quadratic in the error, so the excursion must lift its signal above
         the noise: 0.3 sqrt(sigma) cycles, 0.03 at sigma = 0.01)."""
         noise = max(self.params.detector_noise**2, self._noise_var or 0.0) ** 0.5
-        return max(self.params.hold_dither_cycles, 0.3 * noise**0.5)
+        per_stage = 0.3 * noise**0.5  # what each excursed stage needs
+        if self.params.hold_pattern == "all":
+            per_stage *= self.stage**0.5  # the length over all stages
+        return max(self.params.hold_dither_cycles, per_stage)
 
     def _tolerance(self, base: float | None = None) -> float:
         """Mean squared residual that still counts as a fit: the base tolerance plus three times
@@ -360,7 +393,7 @@ class PhaseTracker:
         w = self.params.walk_cycles
         return max(6.0 * self.model.jitter_sigma_cycles, 1e-4) if w is None else w
 
-    def _fit_path(self, x_now, drift, u, y, iterations: int):
+    def _fit_path(self, x_now, drift, u, y, iterations: int, drift_prior=None):
         """Moving-horizon fit of the window: the errors at every reading X (K, N) and the drift
         mu (N,), most probable given the readings (std sqrt(tolerance + noise)), a random walk
         between readings (X_k - X_k-1 - mu, std ``walk``) and the drift's prior (the present
@@ -370,7 +403,8 @@ class PhaseTracker:
         p = self.params
         k, n = u.shape
         r_sd = (p.residual_tolerance + max(p.detector_noise**2, self._noise_var or 0.0)) ** 0.5
-        w_sd, m_sd = self._walk_sigma(), p.drift_prior_cycles
+        w_sd = self._walk_sigma()
+        m_sd = np.full(n, p.drift_prior_cycles) if drift_prior is None else drift_prior
         age = np.arange(k - 1, -1, -1, dtype=np.float64)
         path = x_now[None, :] - age[:, None] * drift[None, :]
         z = np.concatenate([path.ravel(), drift])
@@ -385,7 +419,7 @@ class PhaseTracker:
             walk[rows, k * n :] = -np.eye(n)
         walk /= w_sd
         prior = np.zeros((n, d))
-        prior[:, k * n :] = np.eye(n) / m_sd
+        prior[:, k * n :] = np.diag(1.0 / m_sd)
         h = 1e-4
         offsets = np.concatenate([np.zeros((1, n)), h * np.eye(n)])  # (N + 1, N)
 
@@ -426,6 +460,7 @@ class PhaseTracker:
             else:
                 lam *= 10.0
         self._path = z[: k * n].reshape(k, n)  # the fitted errors at every reading
+        self._objective = cost  # the fit's whole normalized cost (readings, walk, prior)
         return z[(k - 1) * n : k * n], z[k * n :], data_cost
 
     def _track(self) -> None:
@@ -436,6 +471,13 @@ class PhaseTracker:
             self.estimate + self.drift, self.drift, u, y, p.track_iterations
         )
         lost = self._tolerance(p.lost_tolerance)
+        if p.knot_prior_cycles > 0 and (
+            cost > self._tolerance(p.knot_tolerance) or self._walk_jump() > p.knot_walk_sigmas
+        ):
+            # A knot of one stage's drift? Fit the window with that stage's drift let loose, one
+            # hypothesis per stage, and keep the best if it explains the readings clearly better
+            # (a wrong drift otherwise pulls every stage's estimate off within a few readings).
+            x, drift, cost = self._knot_fit(x, drift, cost, u, y)
         if cost > lost:  # a knot of the drift, a fast walk: iterate further before giving up
             x, drift, cost = self._fit_path(
                 self.estimate + self.drift, self.drift, u, y, p.iterations
@@ -454,6 +496,35 @@ class PhaseTracker:
         self.estimate = _wrap(x)
         if p.calibrate:
             self._calibrate(u, self._path)
+
+    def _knot_fit(self, x, drift, cost, u, y):
+        """The best of the present fit (x, drift, cost) and one fit per stage with that stage's
+        drift prior widened to ``knot_prior_cycles``; a hypothesis wins only if it lowers the
+        readings' residual by ``knot_gain`` or more (the path of the winner is kept)."""
+        p = self.params
+        best, best_path, best_obj = (x, drift, cost), self._path, self._objective
+        for j in range(self.stage):
+            prior = np.full(self.stage, p.drift_prior_cycles)
+            prior[j] = p.knot_prior_cycles
+            for sign in (1.0, -1.0):  # the new slope's side: both starts (one reading is even)
+                x0, d0 = self.estimate + self.drift, self.drift.copy()
+                x0[j] += sign * p.knot_start_cycles
+                d0[j] += sign * p.knot_start_cycles
+                fit = self._fit_path(x0, d0, u, y, p.iterations, drift_prior=prior)
+                if self._objective + p.knot_penalty < best_obj:
+                    best, best_path, best_obj = fit, self._path, self._objective
+        self._path, self._objective = best_path, best_obj
+        if best[0] is not x:
+            self.knots += 1
+        return best
+
+    def _walk_jump(self) -> float:
+        """The largest move of the fitted path over its last step, away from the drift, in
+        units of the walk's std (a knot shows here before the readings' residual grows)."""
+        if self._path.shape[0] < 2:
+            return 0.0
+        step = self._path[-1] - self._path[-2] - self.drift
+        return float(np.max(np.abs(step))) / self._walk_sigma()
 
     def _calibrate(self, u: np.ndarray, path: np.ndarray) -> None:
         """Feed the window's fit to the calibration; every ``calibration_every`` readings, move

@@ -28,6 +28,12 @@ PARAMS = [
     ParamSpec(
         "hold_dither_cycles", _D.hold_dither_cycles, "excursion while tracking", low=0.0, high=0.25
     ),
+    ParamSpec(
+        "hold_pattern",
+        _D.hold_pattern,
+        "tracking excursion: all stages at once (Hadamard signs) or one at a time",
+        choices=("all", "one"),
+    ),
     ParamSpec("detector_noise", _D.detector_noise, "assumed detector noise std", low=0.0, high=1.0),
     # A rig runs in real time: the global search is spread over readings (the in-process
     # evaluation's default, 0, does it in one reading and locks a few steps sooner).
@@ -39,7 +45,13 @@ PARAMS = [
         high=1000.0,
     ),
 ]
-_TRACKER_FIELDS = ("window", "hold_dither_cycles", "detector_noise", "step_budget_ms")
+_TRACKER_FIELDS = (
+    "window",
+    "hold_dither_cycles",
+    "hold_pattern",
+    "detector_noise",
+    "step_budget_ms",
+)
 _MODEL_FIELDS = ("wavelength_nm", "pulse_fwhm_fs", "detector")
 
 

@@ -199,7 +199,8 @@ def evaluate_run(spec: dict, model=None) -> dict[str, Any]:
 # ------------------------------------------------------------------------------ training
 def train_argv(spec: dict, work: Path, resume: bool, remaining: int) -> list[str]:
     """The ``ros2 run ops_gym_bridge train`` arguments of a training run of the benchmark: the
-    paper's hyper-parameter set, one in-process env, the run's observation set."""
+    run's hyper-parameter set (the paper's unless the spec names one), one in-process env, the
+    run's observation set."""
     argv = [
         "--algo", spec["algo"],
         "--stage", str(spec["stage"]),
@@ -210,7 +211,7 @@ def train_argv(spec: dict, work: Path, resume: bool, remaining: int) -> list[str
         "--episode-steps", str(int(spec["episode_steps"])),
         "--seed", str(int(spec["seed"])),
         "--timesteps", str(int(remaining)),
-        "--hyperparams-set", "paper",
+        "--hyperparams-set", spec.get("hyperparams_set", "paper"),
         "--n-envs", "1",
         "--obs-history", "0",
         "--reward", "paper",

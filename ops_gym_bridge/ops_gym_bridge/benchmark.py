@@ -40,7 +40,7 @@ from ops_sim_ros.observation import OBSERVATION_SETS
 
 from . import cli_args
 from .bench_worker import EXIT_INTERRUPTED, read_json, write_json
-from .hyperparams import ALGOS
+from .hyperparams import ALGOS, BENCHMARK_SETS
 from .ray_pool import RayAddressError, RayPool, check_address
 
 PAPER_MODES = ("easy", "medium", "hard")
@@ -121,6 +121,8 @@ def plan(args) -> list[dict[str, Any]]:
         "eval": evaluation,
         "save_every": args.save_every,
     }
+    if args.hyperparams_set != "paper":  # (runs stored before the option hold no key)
+        common["hyperparams_set"] = args.hyperparams_set
     modes = args.modes or prof["modes"]
     algos = args.algos or prof["algos"]
     seeds = prof["seeds"] if args.seeds is None else args.seeds
@@ -470,6 +472,13 @@ def build_parser():
     p.add_argument("--timesteps", type=int, help="training steps of every run (overrides)")
     p.add_argument("--eval-seeds", type=int, nargs="+", help="evaluation seeds (overrides)")
     p.add_argument("--eval-episodes", type=int, help="episodes per evaluation seed (overrides)")
+    p.add_argument(
+        "--hyperparams-set",
+        choices=BENCHMARK_SETS,
+        default="paper",
+        help="hyper-parameters of the training runs: paper (the paper's tables) or authors (the "
+        "authors' code, which made the paper's Table 1)",
+    )
     cli_args.add_key_value_argument(
         p, "--hyperparams", help="overrides passed to every training run"
     )
@@ -511,6 +520,7 @@ def run(argv: list[str] | None = None) -> int:
         "profile": args.profile,
         "detector": args.detector,
         "observation": args.observation,
+        "hyperparams_set": args.hyperparams_set,
         "profile_settings": PROFILES[args.profile],
         "command_line": ["ros2", "run", "ops_gym_bridge", "benchmark", *(argv or sys.argv[1:])],
     }
@@ -519,6 +529,13 @@ def run(argv: list[str] | None = None) -> int:
         print(
             f"[benchmark] error: {out} holds runs with --observation "
             f"{previous.get('observation', 'rig')}",
+            file=sys.stderr,
+        )
+        return 2
+    if previous and previous.get("hyperparams_set", "paper") != args.hyperparams_set:
+        print(
+            f"[benchmark] error: {out} holds runs with --hyperparams-set "
+            f"{previous.get('hyperparams_set', 'paper')}",
             file=sys.stderr,
         )
         return 2

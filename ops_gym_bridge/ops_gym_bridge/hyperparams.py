@@ -3,6 +3,8 @@
 Sets (``train --hyperparams-set NAME``):
 
 * ``paper`` (default): the paper's selected values, ``hyperparams/<algo>.yaml`` (PPO, TD3, SAC).
+* ``authors``: ``hyperparams/authors.yaml``, the values of the authors' code (the code behind
+  the paper's figures), where they differ from the paper's tables (PPO, TD3, SAC).
 * ``fast``: ``hyperparams/fast.yaml``, for the batched simulator on a small CPU: many
   environments, fewer gradient steps per environment step (SAC, TD3, and sb3-contrib's TQC and
   CrossQ); its ``defaults`` block names the algorithm, the number of environments and the
@@ -39,7 +41,9 @@ HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 #: The paper's algorithms (a ``paper`` yaml each; the Table 1 benchmark runs these).
 ALGOS = ("ppo", "td3", "sac")
 #: Named hyper-parameter sets: ``paper`` (one yaml per algorithm), others one yaml each.
-SETS = ("paper", "fast")
+SETS = ("paper", "fast", "authors")
+#: The sets the benchmark may train with (one environment, the paper's protocol).
+BENCHMARK_SETS = ("paper", "authors")
 #: Keys of a set's ``defaults`` block (train options, not SB3 arguments).
 SET_DEFAULT_KEYS = ("algo", "n_envs", "obs_history", "reward")
 #: Keys the CLI handles itself; everything else goes to the SB3 constructor.

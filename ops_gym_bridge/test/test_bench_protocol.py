@@ -66,6 +66,28 @@ def test_benchmark_trains_through_train(tmp_path, monkeypatch):
     assert len(calls) == 1
 
 
+def test_benchmark_trains_with_the_named_hyperparameter_set(tmp_path):
+    """--hyperparams-set authors reaches train: the run's metadata names the set and holds the
+    authors' code's values (SAC: lr 3e-4, 100k buffer, no gSDE, three layers), overrides on top."""
+    from ops_gym_bridge import benchmark
+
+    args = benchmark.build_parser().parse_args(
+        ["--profile", "smoke", "--algos", "sac", "--modes", "easy", "--controllers",
+         "--extra-stages", "--observation", "authors", "--hyperparams-set", "authors"]
+    )  # fmt: skip
+    (spec,) = benchmark.plan(args)
+    assert spec["hyperparams_set"] == "authors"
+    spec = {**spec, "timesteps": 150, "hyperparams": ["learning_starts=50", "batch_size=16"]}
+    argv = bench_worker.train_argv(spec, tmp_path, resume=False, remaining=150)
+    assert argv[argv.index("--hyperparams-set") + 1] == "authors"
+    _, meta = bench_worker.train(spec, tmp_path)
+    hp = meta["hyperparams"]
+    assert meta["hyperparams_set"] == "authors"
+    assert hp["learning_rate"] == 3e-4 and hp["buffer_size"] == 100_000
+    assert hp["use_sde"] is False and hp["net_arch"] == [256, 256, 256]
+    assert hp["batch_size"] == 16  # the profile's override on top of the set
+
+
 def _stored_run(root, observation, kind, name, final):
     """A stored run as benchmark writes it (run.json + evaluation.json), final P_N given."""
     rid = f"n5_easy_{name}" + ("_s0" if kind == "train" else "")
