@@ -63,6 +63,11 @@ RUN_KEYS = (
 )
 
 
+#: What a fine-tuned run (``--init-from``) keeps of its initial model; the task (mode, split,
+#: episode length, reward, environments) may change.
+INIT_KEYS = ("algo", "stage", "detector", "obs_history", "observation", "hyperparams_set")
+
+
 class TrainError(RuntimeError):
     """A run that cannot start; the message says why (exit code 2)."""
 
@@ -90,8 +95,9 @@ def _add_algorithm_arguments(p) -> None:
         "--hyperparams-set",
         choices=hp.SETS,
         default="paper",
-        help="named defaults: paper (hyperparams/<algo>.yaml, the paper's) or fast "
-        "(hyperparams/fast.yaml: many batched envs, fewer gradient steps per env step)",
+        help="named defaults: paper (hyperparams/<algo>.yaml, the paper's tables), authors "
+        "(hyperparams/authors.yaml, the authors' code's values) or fast (hyperparams/fast.yaml: "
+        "many batched envs, fewer gradient steps per env step)",
     )
     p.add_argument(
         "--obs-history",
@@ -171,6 +177,13 @@ def _add_run_arguments(p) -> None:
         "--resume",
         action="store_true",
         help="continue training the model in --out (step count continues)",
+    )
+    p.add_argument(
+        "--init-from",
+        metavar="MODEL_DIR",
+        help="start from a trained model's weights (fine-tuning, e.g. with longer episodes or "
+        "in another mode): its algorithm, stage, detector, observation and hyper-parameters are "
+        "kept, the step count continues, its training history goes into the new metadata",
     )
     p.add_argument("--episode-steps", type=int, default=EPISODE_STEPS, help="steps per episode")
     p.add_argument(
@@ -400,6 +413,8 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         raise TrainError("--max-minutes must be > 0")
     if args.eval_freq < 0 or args.eval_episodes < 1:
         raise TrainError("--eval-freq must be >= 0 and --eval-episodes >= 1")
+    if getattr(args, "init_from", None):
+        return _resolve_init(args, out, command_line, raw)
     if not args.resume:
         if (out / "model.zip").exists():
             raise TrainError(
@@ -440,6 +455,48 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
     params = _hyperparams(
         previous.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
     )
+    return TrainRun(args, command_line, out, params, previous)
+
+
+def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> TrainRun:
+    """``--init-from DIR``: the initial model's metadata fixes INIT_KEYS (a differing option
+    is refused, naming both values) and the hyper-parameters (overrides on top)."""
+    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
+
+    if args.resume:
+        raise TrainError("--init-from starts a new run; it cannot be combined with --resume")
+    if (out / "model.zip").exists():
+        raise TrainError(f"{out} already holds a model; choose another --out")
+    source = Path(args.init_from).expanduser().resolve()
+    try:
+        initial = read_metadata(source)
+    except PolicyLoadError as exc:
+        raise TrainError(f"--init-from: {exc}") from None
+    if not (source / "model.zip").exists():
+        raise TrainError(f"--init-from: no model.zip in {source}")
+    given = {a.split("=")[0] for a in raw if a.startswith("--")}
+    for key in INIT_KEYS:
+        flag = "--" + key.replace("_", "-")
+        value = initial.get(key)
+        if flag in given and getattr(args, key) != value:
+            raise TrainError(
+                f"--init-from: {flag} {getattr(args, key)} differs from the model's {value} in "
+                f"{source} (a fine-tuned model keeps its algorithm, stage, detector and "
+                "observation)"
+            )
+        setattr(args, key, value)
+    # The task may change (mode, split, episode length, reward, environments); by default it
+    # stays the model's.
+    for key in ("mode", "split", "episode_steps", "n_envs", "reward"):
+        if "--" + key.replace("_", "-") not in given and initial.get(key) is not None:
+            setattr(args, key, initial[key])
+    _fill_set_defaults(args)
+    params = _hyperparams(
+        initial.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
+    )
+    if params.get("normalize_obs"):
+        raise TrainError("--init-from: models trained with normalize_obs are not supported yet")
+    previous = {"history": [*initial.get("history", []), {"init_from": str(source)}]}
     return TrainRun(args, command_line, out, params, previous)
 
 
@@ -511,7 +568,15 @@ def build_model(run: TrainRun) -> None:
         torch.set_num_threads(args.torch_threads)
     out.mkdir(parents=True, exist_ok=True)
     cls = algo_class(args.algo)
-    if args.resume:
+    if getattr(args, "init_from", None):
+        source = Path(args.init_from).expanduser().resolve() / "model.zip"
+        model = cls.load(str(source), env=run.venv, device=args.device)
+        print(
+            f"[train] fine-tuning {args.algo} from {source} (step {model.num_timesteps}; an "
+            "empty replay buffer)",
+            flush=True,
+        )
+    elif args.resume:
         source = out / "model.zip"
         if not source.exists():
             source = _latest_checkpoint(out)
@@ -574,7 +639,9 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         model.learn(
             total_timesteps=args.timesteps,
             callback=callbacks,
-            reset_num_timesteps=not args.resume,
+            # a fine-tuned model keeps its step count: past learning_starts, it acts from the
+            # first step instead of filling its new buffer with random actions
+            reset_num_timesteps=not (args.resume or getattr(args, "init_from", None)),
             log_interval=1,
         )
     except KeyboardInterrupt:
