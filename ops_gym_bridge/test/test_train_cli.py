@@ -197,6 +197,32 @@ def test_resume_continues_the_step_count(trained, tmp_path):
     assert done.returncode == 2 and "--stage 5 differs from the model's 3" in done.stderr
 
 
+def test_init_from_fine_tunes_with_another_task(trained, tmp_path):
+    """--init-from: the weights and what the model is (algo, stage, observation, hyper-
+    parameters) come from the initial model; the task may change (here: mode and episode
+    length); the initial model is left as it was."""
+    before = (trained / "model.zip").read_bytes()
+    out = tmp_path / "tuned"
+    done = run(
+        "train", "--init-from", trained, "--out", out, "--mode", "hard", "--episode-steps", 100,
+        "--timesteps", 300, "--no-progress",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "fine-tuning sac from" in done.stdout and "step 1500" in done.stdout
+    meta = read_metadata(out)
+    assert meta["mode"] == "hard" and meta["episode_steps"] == 100
+    assert meta["stage"] == 3 and meta["hyperparams"]["net_arch"] == [64, 64]
+    assert meta["timesteps"] >= 1800  # the step count continues
+    assert meta["history"][-2]["init_from"] == str(trained.resolve())
+    assert (trained / "model.zip").read_bytes() == before
+    # What the model is cannot change; nor can a fine-tune start from nothing.
+    done = run("train", "--init-from", trained, "--out", tmp_path / "x", "--stage", 5)
+    assert done.returncode == 2 and "--stage 5 differs from the model's 3" in done.stderr
+    done = run("train", "--init-from", tmp_path / "nothing", "--out", tmp_path / "y")
+    assert done.returncode == 2 and "--init-from" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
 def test_refuses_to_overwrite_and_bad_hyperparameters(trained, tmp_path):
     done = run("train", "--out", trained, "--timesteps", 10)
     assert done.returncode == 2 and "already holds a model" in done.stderr
