@@ -434,7 +434,9 @@ class RelayedHosts(TwoHosts):
     (``set(loss=0.05, delay_ms=20, down=False)``; this kernel has no netem). The relay's counts
     are in ``self.relay.output``."""
 
-    def __init__(self, tmp_path: Path, seed: int = 0):
+    def __init__(self, tmp_path: Path, seed: int = 0, relay_nice: int = 0):
+        """``relay_nice``: the relay's niceness (it stands in for a network, which takes no CPU
+        of the hosts; a benchmark that raises the loop's priority raises the relay's too)."""
         reason = netns_unavailable_reason()
         if reason:
             raise NetnsUnavailable(reason)
@@ -464,9 +466,11 @@ class RelayedHosts(TwoHosts):
                 ports.append(port)
             self.set()
             log = Path(tmp_path) / f"relay_{tag}.log"
+            prio = ["nice", "-n", str(relay_nice)] if relay_nice else []
             self.relay = Process(
                 self.r.command(
                     [
+                        *prio,
                         PYTHON,
                         REPO / "scripts" / "fault_relay.py",
                         *ports,
