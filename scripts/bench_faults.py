@@ -95,6 +95,7 @@ def ws_clients_main(port: int, clients: int) -> None:
     import json
 
     import websockets
+    import websockets.exceptions  # not loaded by `import websockets` alone (lazy imports)
 
     async def client(k: int) -> None:
         async with websockets.connect(
@@ -116,7 +117,8 @@ def ws_clients_main(port: int, clients: int) -> None:
         with contextlib.suppress(websockets.exceptions.ConnectionClosed):
             await asyncio.gather(*(client(k) for k in range(clients)))
 
-    asyncio.run(run_all())
+    with contextlib.suppress(KeyboardInterrupt):  # stopped at the end of its phase
+        asyncio.run(run_all())
 
 
 def readings(proc, t0: float, t1: float) -> list[tuple[float, float]]:
@@ -184,6 +186,8 @@ def run_controller(name: str, args, tmp: Path) -> dict:
                     viewers += [fox, hosts.a.start(group, ws, name="ws_clients", env=env)]
                 return viewers
 
+            stopped = []  # the phases' own processes (viewers, flooders), stopped by them
+
             def phase(label, loss=0.0, down_s=0.0, load=0, flood=0.0, viewers=False):
                 busy, extra = [], []
                 if down_s:
@@ -213,6 +217,7 @@ def run_controller(name: str, args, tmp: Path) -> dict:
                     row["flood_per_s"] = int(sent.group(1))
                 for proc in reversed(extra):  # clients before the servers they use
                     proc.stop()
+                    stopped.append(proc)
                 if down_s:
                     locked = [t for t, p in rows if p >= THRESHOLD]
                     row["recovery_s"] = locked[0] - t0 if locked else float("inf")
@@ -236,8 +241,8 @@ def run_controller(name: str, args, tmp: Path) -> dict:
             }
             for name_ in args.phases:
                 phases[name_]()
-            for proc in group.started:
-                if proc.popen.poll() is not None:
+            for proc in group.started:  # an exit the schedule did not ask for
+                if proc not in stopped and proc.popen.poll() is not None:
                     results["exited"] = f"{proc.args[-1]} exited ({proc.popen.returncode})"
         finally:
             group.stop_all()
