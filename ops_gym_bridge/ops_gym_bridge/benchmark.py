@@ -525,26 +525,18 @@ def run(argv: list[str] | None = None) -> int:
         "command_line": ["ros2", "run", "ops_gym_bridge", "benchmark", *(argv or sys.argv[1:])],
     }
     previous = read_json(out / "benchmark.json")
-    if previous and previous.get("observation", "rig") != args.observation:
-        print(
-            f"[benchmark] error: {out} holds runs with --observation "
-            f"{previous.get('observation', 'rig')}",
-            file=sys.stderr,
-        )
-        return 2
-    if previous and previous.get("hyperparams_set", "paper") != args.hyperparams_set:
-        print(
-            f"[benchmark] error: {out} holds runs with --hyperparams-set "
-            f"{previous.get('hyperparams_set', 'paper')}",
-            file=sys.stderr,
-        )
-        return 2
-    if previous and previous.get("detector") != args.detector:
-        print(
-            f"[benchmark] error: {out} holds runs with --detector {previous['detector']}",
-            file=sys.stderr,
-        )
-        return 2
+    # A folder holds one protocol: runs with another observation, hyper-parameter set or
+    # detector go to another --out (None: every stored folder has the key).
+    for key, default in (
+        ("observation", "rig"),
+        ("hyperparams_set", "paper"),
+        ("detector", None),
+    ):
+        stored = previous.get(key, default) if previous else getattr(args, key)
+        if stored != getattr(args, key):
+            flag = "--" + key.replace("_", "-")
+            print(f"[benchmark] error: {out} holds runs with {flag} {stored}", file=sys.stderr)
+            return 2
     write_json(out / "benchmark.json", settings)
     return execute(args, specs, out)
 

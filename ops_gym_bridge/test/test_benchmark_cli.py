@@ -205,3 +205,26 @@ def test_report_reproduces_committed_table1(tmp_path):
 
     write_report(tmp_path / "n5", tmp_path / "out")
     assert (tmp_path / "out" / "table1.csv").read_text() == (COMMITTED / "table1.csv").read_text()
+
+
+@pytest.mark.parametrize(
+    ("stored", "option", "message"),
+    [
+        ({"observation": "authors"}, [], "holds runs with --observation authors"),
+        ({"hyperparams_set": "authors"}, [], "holds runs with --hyperparams-set authors"),
+        ({}, ["--hyperparams-set", "authors"], "holds runs with --hyperparams-set paper"),
+        ({"detector": "total"}, [], "holds runs with --detector total"),
+    ],
+)
+def test_a_folder_holds_one_protocol(tmp_path, capsys, stored, option, message):
+    """Runs of another observation set, hyper-parameter set or detector are refused before
+    anything runs or is written (a folder without the key holds the old default)."""
+    from ops_gym_bridge import benchmark
+
+    settings = {"detector": "polarizer", **stored}
+    (tmp_path / "benchmark.json").write_text(json.dumps(settings))
+    argv = ["--profile", "smoke", "--algos", "sac", "--controllers", "--out", str(tmp_path)]
+    assert benchmark.run(argv + option) == 2
+    assert message in capsys.readouterr().err
+    assert json.loads((tmp_path / "benchmark.json").read_text()) == settings
+    assert not (tmp_path / "runs").exists()
