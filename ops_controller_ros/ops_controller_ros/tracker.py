@@ -77,12 +77,11 @@ class TrackerParams:
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
     misses: int = 3  # bad fits in a row before recovering
     # Knots of the drift (a stage's slope changes): a tracking fit whose residual exceeds
-    # knot_tolerance is tried again with one stage's drift prior widened to knot_prior_cycles
-    # (each stage in turn; 0: never); a hypothesis is taken if it divides the residual by
-    # knot_gain.
+    # knot_tolerance (or whose path jumps, knot_walk_sigmas) is tried again with one stage's
+    # drift prior widened to knot_prior_cycles (each stage in turn; 0: never); a hypothesis is
+    # taken if its whole cost plus knot_penalty is the lowest.
     knot_tolerance: float = 1e-6
     knot_prior_cycles: float = 0.03
-    knot_gain: float = 3.0
     knot_start_cycles: float = 0.02  # the knot fits start this far off the prediction
     knot_walk_sigmas: float = 2.0  # a path step this far off the drift (walk stds) tries knots
     knot_penalty: float = 4.0  # a knot hypothesis wins if its cost + this is the lowest
@@ -116,7 +115,6 @@ class TrackerParams:
             ("misses", self.misses >= 1, ">= 1"),
             ("knot_tolerance", self.knot_tolerance > 0, "> 0"),
             ("knot_prior_cycles", self.knot_prior_cycles >= 0, ">= 0"),
-            ("knot_gain", self.knot_gain >= 1, ">= 1"),
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
             ("step_budget_ms", self.step_budget_ms >= 0, ">= 0"),
             ("calibration_every", self.calibration_every >= 1, ">= 1"),
@@ -503,11 +501,12 @@ class PhaseTracker:
             self._calibrate(u, self._path)
 
     def _knot_fit(self, x, drift, cost, u, y):
-        """The best of the present fit (x, drift, cost) and one fit per stage with that stage's
-        drift prior widened to ``knot_prior_cycles``; a hypothesis wins only if it lowers the
-        readings' residual by ``knot_gain`` or more (the path of the winner is kept)."""
+        """The best of the present fit (x, drift, cost) and one fit per stage and side with that
+        stage's drift prior widened to ``knot_prior_cycles``; a hypothesis wins only if its whole
+        cost plus ``knot_penalty`` is below the best so far (the path of the winner is kept)."""
         p = self.params
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
+        won = False
         for j in range(self.stage):
             prior = np.full(self.stage, p.drift_prior_cycles)
             prior[j] = p.knot_prior_cycles
@@ -517,10 +516,9 @@ class PhaseTracker:
                 d0[j] += sign * p.knot_start_cycles
                 fit = self._fit_path(x0, d0, u, y, p.iterations, drift_prior=prior)
                 if self._objective + p.knot_penalty < best_obj:
-                    best, best_path, best_obj = fit, self._path, self._objective
+                    best, best_path, best_obj, won = fit, self._path, self._objective, True
         self._path, self._objective = best_path, best_obj
-        if best[0] is not x:
-            self.knots += 1
+        self.knots += won
         return best
 
     def _walk_jump(self) -> float:

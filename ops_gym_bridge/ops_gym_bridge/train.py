@@ -413,7 +413,7 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         raise TrainError("--max-minutes must be > 0")
     if args.eval_freq < 0 or args.eval_episodes < 1:
         raise TrainError("--eval-freq must be >= 0 and --eval-episodes >= 1")
-    if getattr(args, "init_from", None):
+    if args.init_from:
         return _resolve_init(args, out, command_line, raw)
     if not args.resume:
         if (out / "model.zip").exists():
@@ -474,6 +474,7 @@ def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> T
         raise TrainError(f"--init-from: {exc}") from None
     if not (source / "model.zip").exists():
         raise TrainError(f"--init-from: no model.zip in {source}")
+    args.init_from = str(source)  # resolved once; build_model loads from it
     given = {a.split("=")[0] for a in raw if a.startswith("--")}
     for key in INIT_KEYS:
         flag = "--" + key.replace("_", "-")
@@ -568,8 +569,8 @@ def build_model(run: TrainRun) -> None:
         torch.set_num_threads(args.torch_threads)
     out.mkdir(parents=True, exist_ok=True)
     cls = algo_class(args.algo)
-    if getattr(args, "init_from", None):
-        source = Path(args.init_from).expanduser().resolve() / "model.zip"
+    if args.init_from:
+        source = Path(args.init_from) / "model.zip"
         model = cls.load(str(source), env=run.venv, device=args.device)
         print(
             f"[train] fine-tuning {args.algo} from {source} (step {model.num_timesteps}; an "
@@ -641,7 +642,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
             callback=callbacks,
             # a fine-tuned model keeps its step count: past learning_starts, it acts from the
             # first step instead of filling its new buffer with random actions
-            reset_num_timesteps=not (args.resume or getattr(args, "init_from", None)),
+            reset_num_timesteps=not (args.resume or args.init_from),
             log_interval=1,
         )
     except KeyboardInterrupt:
