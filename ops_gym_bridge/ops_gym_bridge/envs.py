@@ -64,6 +64,7 @@ def _batched_vec_env(
     seed,
     overrides: dict,
     observation_options: dict | None = None,
+    continue_prob: float = 0.0,
 ):
     """ops_sim_ros's batched SB3 VecEnv (one physics call for all envs), if it is available."""
     try:
@@ -88,6 +89,7 @@ def _batched_vec_env(
             max_episode_steps=episode_steps,
             seed=seed,
             observation_options=observation_options,
+            continue_prob=continue_prob,
             **overrides,
         )
     return VecMonitor(venv, info_keywords=("power",))
@@ -106,13 +108,16 @@ def make_vec_env(
     batched: bool = True,
     overrides: dict[str, Any] | None = None,
     observation_options: dict[str, Any] | None = None,
+    continue_prob: float = 0.0,
 ):
     """An SB3 VecEnv of ``n_envs`` monitored envs.
 
     In-process with ``n_envs > 1``: the batched vector env of ``ops_sim_ros.vec_env`` (falls back to
     a DummyVecEnv of ``OpsEnv`` if it is missing). ROS backend: one bridge per namespace.
     ``overrides``: OpsConfig fields (e.g. ``detector``) of every env; ``observation_options``:
-    the observation's choices (e.g. ``{"history": 4}``) of every env.
+    the observation's choices (e.g. ``{"history": 4}``) of every env; ``continue_prob``: the
+    share of episode ends that carry on the same run (``ops_sim_ros.vec_env``; batched in-process
+    envs only).
     """
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -152,10 +157,20 @@ def make_vec_env(
         raise ValueError(f"backend must be one of {', '.join(BACKENDS)} (got {backend!r})")
     if n_envs > 1 and batched:
         venv = _batched_vec_env(
-            n_envs, stage, mode, split, episode_steps, seed, overrides or {}, observation_options
+            n_envs,
+            stage,
+            mode,
+            split,
+            episode_steps,
+            seed,
+            overrides or {},
+            observation_options,
+            continue_prob,
         )
         if venv is not None:
             return venv
+    if continue_prob:
+        raise ValueError("continue_prob needs the batched in-process envs (n_envs >= 2)")
     fns = [
         (
             lambda: Monitor(

@@ -60,6 +60,7 @@ RUN_KEYS = (
     "observation",
     "reward",
     "hyperparams_set",
+    "continue_prob",
 )
 
 
@@ -122,6 +123,16 @@ def _add_algorithm_arguments(p) -> None:
         help="observation set: rig (what a real stacker measures) or authors (the authors' "
         "CPS_env: power, trace and the actual delay-line lengths, a simulator-only oracle); "
         "saved in the model's metadata (default: rig; --resume: the model's)",
+    )
+    p.add_argument(
+        "--setpoint-window",
+        type=cli_args.non_negative_float,
+        default=None,
+        metavar="CYCLES",
+        help="observe each set-point relative to a whole number of optical cycles that follows "
+        "it (re-centred when it leaves +- CYCLES; >= 0.5), so that a long run, whose drift "
+        "carries the delays cycles away, looks like the training episodes; 0: absolute "
+        "set-points (default: 0; --resume and --init-from: the model's)",
     )
     cli_args.add_key_value_argument(
         p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
@@ -187,6 +198,15 @@ def _add_run_arguments(p) -> None:
     )
     p.add_argument("--episode-steps", type=int, default=EPISODE_STEPS, help="steps per episode")
     p.add_argument(
+        "--continue-prob",
+        type=cli_args.non_negative_float,
+        default=None,
+        metavar="Q",
+        help="probability that an ending episode carries on from where it is (delays, drift, "
+        "set-points) instead of a fresh start: the states of a long run enter the training data "
+        "(in-process batched environments; default 0; --resume and --init-from: the model's)",
+    )
+    p.add_argument(
         "--namespace",
         action="append",
         default=None,
@@ -214,8 +234,12 @@ def _sigterm_to_interrupt(signum, frame):
 
 
 def observation_options(args) -> dict[str, Any]:
-    """The run's observation choices (memory, observation set) for every env it builds."""
-    return {"history": args.obs_history, "observation": args.observation}
+    """The run's observation choices (memory, observation set, set-point window) for every env
+    it builds."""
+    options = {"history": args.obs_history, "observation": args.observation}
+    if args.setpoint_window:  # (left out when 0: a spec as before the option)
+        options["setpoint_window_cycles"] = args.setpoint_window
+    return options
 
 
 def _latest_checkpoint(out: Path) -> Path | None:
@@ -296,6 +320,7 @@ def build_metadata(
         "observation": args.observation,
         "reward": args.reward,
         "hyperparams_set": args.hyperparams_set,
+        "continue_prob": args.continue_prob,
         "hyperparams": params,
         "interrupted": interrupted,
         "train_final_power_mean": float(powers.mean()) if powers.size else None,
@@ -451,6 +476,7 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         args.observation = str(previous["observation_spec"].get("observation", "rig"))
     if args.reward is None:  # ... or before training rewards
         args.reward = "paper"
+    _fill_from_model(args, previous)
     _fill_set_defaults(args)
     params = _hyperparams(
         previous.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
@@ -488,9 +514,10 @@ def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> T
         setattr(args, key, value)
     # The task may change (mode, split, episode length, reward, environments); by default it
     # stays the model's.
-    for key in ("mode", "split", "episode_steps", "n_envs", "reward"):
+    for key in ("mode", "split", "episode_steps", "n_envs", "reward", "continue_prob"):
         if "--" + key.replace("_", "-") not in given and initial.get(key) is not None:
             setattr(args, key, initial[key])
+    _fill_from_model(args, initial)
     _fill_set_defaults(args)
     params = _hyperparams(
         initial.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
@@ -499,6 +526,13 @@ def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> T
         raise TrainError("--init-from: models trained with normalize_obs are not supported yet")
     previous = {"history": [*initial.get("history", []), {"init_from": str(source)}]}
     return TrainRun(args, command_line, out, params, previous)
+
+
+def _fill_from_model(args, metadata: dict) -> None:
+    """The set-point window not given: the model's (0 for models from before the option)."""
+    if args.setpoint_window is None:
+        spec = metadata.get("observation_spec") or {}
+        args.setpoint_window = float(spec.get("setpoint_window_cycles", 0.0))
 
 
 def _fill_set_defaults(args) -> None:
@@ -513,6 +547,17 @@ def _fill_set_defaults(args) -> None:
             setattr(args, key, value)
     if args.observation is None:
         args.observation = "rig"
+    if args.setpoint_window is None:
+        args.setpoint_window = 0.0
+    if args.continue_prob is None:
+        args.continue_prob = 0.0
+    if not args.continue_prob < 1.0:
+        raise TrainError(f"--continue-prob must be in [0, 1) (got {args.continue_prob})")
+    if args.continue_prob > 0 and (args.backend != "inprocess" or args.n_envs < 2):
+        raise TrainError(
+            "--continue-prob needs the in-process batched environments (--backend inprocess, "
+            f"--n-envs >= 2; got --backend {args.backend}, --n-envs {args.n_envs})"
+        )
     if args.obs_history < 0:
         raise TrainError("--obs-history must be >= 0")
     if args.n_envs < 1:
@@ -544,6 +589,7 @@ def build_env(run: TrainRun) -> None:
             episode_steps=args.episode_steps,
             overrides={"detector": args.detector},
             observation_options=observation_options(args),
+            continue_prob=args.continue_prob,
         )
     except ValueError as exc:
         raise TrainError(str(exc)) from None
@@ -632,8 +678,8 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
         f"detector={args.detector} backend={args.backend} n_envs={args.n_envs} "
         f"obs_history={args.obs_history} observation={args.observation} reward={args.reward} "
-        f"hyperparams_set={args.hyperparams_set} "
-        f"steps {run.start_steps} -> {total}, out={out}",
+        f"hyperparams_set={args.hyperparams_set} setpoint_window={args.setpoint_window:g} "
+        f"continue_prob={args.continue_prob:g} steps {run.start_steps} -> {total}, out={out}",
         flush=True,
     )
     try:

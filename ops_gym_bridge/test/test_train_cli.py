@@ -223,6 +223,39 @@ def test_init_from_fine_tunes_with_another_task(trained, tmp_path):
     assert "Traceback" not in done.stderr
 
 
+def test_long_run_training_options_are_saved_and_checked(trained, tmp_path):
+    """--continue-prob (episodes that carry on the same run) and --setpoint-window (set-points
+    re-centred by whole cycles) reach the envs and the metadata; a fine-tune keeps them unless
+    told otherwise; impossible values are refused before training."""
+    out = tmp_path / "long"
+    done = run(
+        "train", "--init-from", trained, "--out", out, "--n-envs", 4, "--episode-steps", 50,
+        "--continue-prob", 0.5, "--setpoint-window", 1, "--timesteps", 400, "--no-progress",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "setpoint_window=1 continue_prob=0.5" in done.stdout
+    meta = read_metadata(out)
+    assert meta["continue_prob"] == 0.5 and meta["n_envs"] == 4
+    assert meta["observation_spec"]["setpoint_window_cycles"] == 1.0
+    loaded = load_policy(out)
+    assert loaded.observation_spec["setpoint_window_cycles"] == 1.0
+    again = run(
+        "train", "--init-from", out, "--out", tmp_path / "again", "--timesteps", 200,
+        "--no-progress",
+    )  # fmt: skip
+    assert again.returncode == 0, again.stdout + again.stderr
+    meta = read_metadata(tmp_path / "again")
+    assert meta["continue_prob"] == 0.5 and meta["observation_spec"]["setpoint_window_cycles"] == 1
+    for extra, message in (
+        (["--continue-prob", 0.5], "--continue-prob needs the in-process batched"),
+        (["--continue-prob", 1.0, "--n-envs", 2], "--continue-prob must be in [0, 1)"),
+        (["--setpoint-window", 0.2], "setpoint_window_cycles must be 0 (off) or >= 0.5"),
+    ):
+        done = run("train", "--out", tmp_path / "bad", "--timesteps", 10, *extra)
+        assert done.returncode == 2 and message in done.stderr, done.stderr
+        assert "Traceback" not in done.stderr
+
+
 def test_refuses_to_overwrite_and_bad_hyperparameters(trained, tmp_path):
     done = run("train", "--out", trained, "--timesteps", 10)
     assert done.returncode == 2 and "already holds a model" in done.stderr

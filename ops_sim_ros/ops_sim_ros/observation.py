@@ -31,6 +31,17 @@ authors' observation: their Gaussian observation noise (sigma 1e-4 on these scal
 rounding of their power to 0.01 of their units and the constant per-environment offset of their
 PZM box (it is centred on the first episode's lengths; ours on the optimum).
 
+Set-points re-centred by whole cycles (``ObservationSpec(setpoint_window_cycles=w)``, w > 0, rig
+set only): each stage's set-point is observed relative to a reference, a whole number of optical
+periods that follows it: when a set-point leaves +- w of its reference, the reference moves to the
+whole cycle nearest to it (every frame of the history is shown against the current reference).
+The interference is periodic in each delay by one optical period (the pulse envelope, a thousand
+times wider, hardly changes over the drift's range), so a policy sees the numbers it was trained
+on wherever drift has carried the delays over hours; absolute set-points (w = 0, the default)
+leave a policy trained on 200-step episodes, where they stay within about a cycle of 0, once the
+drift has moved them a few cycles (measured: issue 20, docs/results.md). The reference is state:
+build these observations with :class:`ObservationBuilder`.
+
 That is one *frame*; with ``history = 0`` (the
 default, the paper's observation) the observation is the current frame.
 
@@ -76,6 +87,8 @@ class ObservationSpec:
     include_setpoints: bool = True
     history: int = 0  # 0: the current frame only; k >= 1: the last k frames and their actions
     observation: str = "rig"  # the observation set: one of OBSERVATION_SETS
+    # 0: set-points as they are; w > 0: relative to a whole-cycle reference that follows them
+    setpoint_window_cycles: float = 0.0
 
     def __post_init__(self) -> None:
         if self.observation not in OBSERVATION_SETS:
@@ -88,6 +101,21 @@ class ObservationSpec:
         if self.history < 0:
             raise ValueError(f"history must be >= 0 (got {self.history})")
         object.__setattr__(self, "history", int(self.history))
+        w = self.setpoint_window_cycles
+        if isinstance(w, bool) or not isinstance(w, int | float) or not (0.0 <= w < 1e6):
+            raise ValueError(f"setpoint_window_cycles must be a number >= 0 (got {w!r})")
+        object.__setattr__(self, "setpoint_window_cycles", float(w))
+        if w > 0 and (self.observation != "rig" or not self.include_setpoints):
+            raise ValueError(
+                "setpoint_window_cycles > 0 re-centres the rig observation's set-points: it needs "
+                f"observation='rig' with set-points (got observation={self.observation!r}, "
+                f"include_setpoints={self.include_setpoints})"
+            )
+        if 0 < w < 0.5:
+            raise ValueError(
+                f"setpoint_window_cycles must be 0 (off) or >= 0.5 (got {w}): a smaller window "
+                "would move the reference back and forth at every step"
+            )
 
     @classmethod
     def from_config(cls, config: OpsConfig, **options: Any) -> ObservationSpec:
@@ -126,7 +154,19 @@ class ObservationSpec:
             "include_setpoints": self.include_setpoints,
             "history": self.history,
             "observation": self.observation,
+            "setpoint_window_cycles": self.setpoint_window_cycles,
         }
+
+    @property
+    def has_state(self) -> bool:
+        """True when an observation depends on the past (memory or re-centred set-points)."""
+        return bool(self.history) or self.setpoint_window_cycles > 0
+
+    @property
+    def setpoint_columns(self) -> slice:
+        """Where one frame of the rig set holds the set-points."""
+        start = self.num_slots * self.include_energies + 1 * self.include_power
+        return slice(start, start + self.stage * self.include_setpoints)
 
     @property
     def needs_applied_delays(self) -> bool:
@@ -136,7 +176,12 @@ class ObservationSpec:
     def describe(self) -> str:
         """A short human description, e.g. for error messages."""
         memory = f"history={self.history}" if self.history else "no memory"
-        return f"stage {self.stage}, {self.dim} values ({memory}; {self.observation} observation)"
+        window = self.setpoint_window_cycles
+        recentred = f"; set-points re-centred (window {window:g} cycles)" if window else ""
+        return (
+            f"stage {self.stage}, {self.dim} values ({memory}; {self.observation} observation"
+            f"{recentred})"
+        )
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) of the observation, float32 arrays of length ``dim``."""
@@ -214,10 +259,11 @@ def build_observation(
     With ``spec.history > 0`` the observation depends on the past: use
     :class:`ObservationBuilder`, which keeps it.
     """
-    if spec.history:
+    if spec.has_state:
         raise ValueError(
-            f"the observation spec has history={spec.history}: build observations with "
-            "ObservationBuilder (it keeps the last frames and actions)"
+            f"the observation spec has history={spec.history}, setpoint_window_cycles="
+            f"{spec.setpoint_window_cycles}: build observations with ObservationBuilder (it keeps "
+            "the last frames and actions, and the set-points' reference)"
         )
     return build_frame(spec, pulse_energies, power, setpoints_fs, applied_fs)
 
@@ -297,42 +343,65 @@ class ObservationBuilder:
         self.single = num_envs is None
         self.num_envs = 1 if num_envs is None else int(num_envs)
         self._frame = spec.frame_dim
-        self._buf = None
-        if spec.history:
-            width = self._frame + spec.stage
-            self._buf = np.zeros((self.num_envs, spec.history, width), dtype=np.float32)
+        # Frames are kept as built (absolute set-points); the set-points' whole-cycle reference
+        # (re-centred observations) is subtracted from every frame on output.
+        self._window = spec.setpoint_window_cycles
+        self._ref = np.zeros((self.num_envs, spec.stage), dtype=np.float32)
+        self._sp_cols = spec.setpoint_columns
+        width = self._frame + (spec.stage if spec.history else 0)
+        self._buf = np.zeros((self.num_envs, max(spec.history, 1), width), dtype=np.float32)
         self._started = np.zeros(self.num_envs, dtype=bool)
 
     @property
     def has_memory(self) -> bool:
-        return self._buf is not None
+        return self.spec.history > 0
+
+    @property
+    def setpoint_reference_cycles(self) -> np.ndarray:
+        """The whole-cycle reference of each env's set-points (zeros without re-centring)."""
+        ref = self._ref.copy()
+        return ref[0] if self.single else ref
 
     def reset(self, pulse_energies, power, setpoints_fs, mask=None, applied_fs=None) -> np.ndarray:
         frame = build_frame(self.spec, pulse_energies, power, setpoints_fs, applied_fs)
-        if self._buf is None:
+        if not self.spec.has_state:
             return frame
         rows = slice(None) if mask is None else np.asarray(mask, dtype=bool).reshape(-1)
         f = frame.reshape(self.num_envs, self._frame)
         self._buf[rows, :, : self._frame] = f[rows, None, :]
         self._buf[rows, :, self._frame :] = 0.0
+        self._ref[rows] = 0.0
         self._started[rows] = True
         return self._output()
 
     def step(self, pulse_energies, power, setpoints_fs, actions, applied_fs=None) -> np.ndarray:
         frame = build_frame(self.spec, pulse_energies, power, setpoints_fs, applied_fs)
-        if self._buf is None:
+        if not self.spec.has_state:
             return frame
         if not self._started.all():
             raise RuntimeError("ObservationBuilder.step() before reset() of every env")
-        a = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, self.spec.stage)
         buf = self._buf
-        buf[:, 1:] = buf[:, :-1].copy()
+        if self.spec.history > 1:
+            buf[:, 1:] = buf[:, :-1].copy()
         buf[:, 0, : self._frame] = frame.reshape(self.num_envs, self._frame)
-        _clip(a, -1.0, 1.0, out=buf[:, 0, self._frame :])
+        if self.spec.history:
+            a = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, self.spec.stage)
+            _clip(a, -1.0, 1.0, out=buf[:, 0, self._frame :])
         return self._output()
 
     def _output(self) -> np.ndarray:
-        obs = self._buf.reshape(self.num_envs, -1).copy()
+        if self._window > 0:
+            newest = self._buf[:, 0, self._sp_cols]
+            away = np.abs(newest - self._ref) > self._window
+            if away.any():
+                self._ref[away] = np.round(newest[away])
+            out = self._buf.copy()
+            out[:, :, self._sp_cols] -= self._ref[:, None, :]
+        else:
+            out = self._buf.copy()
+        obs = out.reshape(self.num_envs, -1)
+        if not self.spec.history:
+            obs = obs[:, : self._frame]
         return obs[0] if self.single else obs
 
 

@@ -110,6 +110,14 @@ class BatchedSimulation:
         self.last = result
         return result
 
+    def continue_episodes(self, mask) -> None:
+        """New episodes that carry on where the old ones are (``mask``): only the step count
+        restarts; set-points, delay errors and drift go on."""
+        mask = np.asarray(mask, dtype=bool).reshape(self.num_envs)
+        self.step_count[mask] = 0
+        if self.last is not None:  # a fresh array: the caller may still hold the old one
+            self.last.truncated = self.last.truncated & ~mask
+
     def use_rng(self, rng: np.random.Generator) -> None:
         """Draw all further randomness (noise, new episodes) from ``rng``; nothing restarts."""
         self.rng = rng

@@ -13,6 +13,13 @@ Autoreset conventions differ between the libraries:
   ``TimeLimit.truncated`` into their info dicts.
 
 All episodes end by truncation (``max_episode_steps``), never by termination.
+
+``continue_prob = q`` (default 0): an episode that ends continues the same run with probability
+q instead of starting afresh: only its step count restarts, the delay errors, the drift and the
+set-points carry on (and so does the observation's memory). Training data then holds the states
+a long run reaches (delays carried cycles away by drift, hours into a run) besides fresh starts;
+a chain of episodes lasts 1 / (1 - q) episodes on average. The random draws come from the
+simulation's stream, so a seed still fixes everything.
 """
 
 from __future__ import annotations
@@ -42,8 +49,13 @@ class _BatchCore:
         action_type: str = "increment",
         max_episode_steps: int = 200,
         observation_options: dict[str, Any] | None = None,
+        continue_prob: float = 0.0,
         **overrides: Any,
     ) -> None:
+        q = continue_prob
+        if isinstance(q, bool) or not isinstance(q, int | float) or not 0.0 <= q < 1.0:
+            raise ValueError(f"continue_prob must be in [0, 1) (got {q!r})")
+        self.continue_prob = float(q)
         setup = env_setup(
             stage, mode, split, action_type, max_episode_steps, observation_options, overrides
         )
@@ -71,6 +83,18 @@ class _BatchCore:
             r.pulse_energies, r.power, r.setpoints_fs, actions, applied_fs=r.applied_fs
         )
         return r, obs
+
+    def _end_episodes(self, done: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, StepResult]:
+        """After the step that ended the episodes in ``done``: start new ones there (or, with
+        ``continue_prob``, let some carry on); the observations and result after that."""
+        fresh = done
+        if self.continue_prob > 0.0:
+            fresh = done & (self.sim.rng.random(self.num_envs) >= self.continue_prob)
+            self.sim.continue_episodes(done & ~fresh)
+        if not fresh.any():
+            return obs, self.sim.last
+        r = self.sim.reset(mask=fresh)
+        return self._reset_obs(r, fresh), r
 
     def _reset_obs(self, r: StepResult, mask=None) -> np.ndarray:
         """Observations after new episodes started (all, or where ``mask`` is True)."""
@@ -164,8 +188,7 @@ class OpsVectorEnv(_BatchCore, VectorEnv):
                 final_info[key] = np.where(
                     done.reshape(-1, *([1] * (value.ndim - 1))), value, np.zeros_like(value)
                 )
-        r2 = self.sim.reset(mask=done)
-        obs = self._reset_obs(r2, done)
+        obs, r2 = self._end_episodes(done, obs)
         info = self._infos(r2)
         info.update(
             final_obs=final_obs,
@@ -226,7 +249,7 @@ def _make_sb3_class():
                 for i in np.flatnonzero(dones):
                     infos[i]["terminal_observation"] = obs[i]
                     infos[i]["TimeLimit.truncated"] = True
-                obs = self._reset_obs(self.sim.reset(mask=dones), dones)
+                obs, _ = self._end_episodes(dones, obs)
             return obs, rewards, dones, infos
 
         def close(self) -> None:

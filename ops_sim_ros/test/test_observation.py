@@ -164,3 +164,66 @@ def test_authors_set_needs_the_applied_delays_and_round_trips():
     # specs saved before observation sets are the rig's
     old = {k: v for k, v in ObservationSpec(stage=2).to_dict().items() if k != "observation"}
     assert ObservationSpec.from_dict(old).observation == "rig"
+
+
+# ------------------------------------------------------------------ set-points re-centred by cycles
+def test_setpoint_window_spec_checks_and_old_specs():
+    cfg = make_config(stage=3)
+    spec = ObservationSpec.from_config(cfg, history=2, setpoint_window_cycles=1)
+    assert spec.setpoint_window_cycles == 1.0 and spec.has_state
+    assert ObservationSpec.from_dict(spec.to_dict()) == spec
+    assert ObservationSpec.from_config(cfg, **spec.options()) == spec
+    old = {k: v for k, v in spec.to_dict().items() if k != "setpoint_window_cycles"}
+    assert ObservationSpec.from_dict(old).setpoint_window_cycles == 0.0  # saved before the option
+    assert "re-centred" in spec.describe()
+    for bad in (-1.0, 0.2, True, float("nan"), "1"):
+        with pytest.raises(ValueError, match="setpoint_window_cycles"):
+            ObservationSpec(stage=3, setpoint_window_cycles=bad)
+    with pytest.raises(ValueError, match="observation='rig'"):
+        ObservationSpec(stage=3, observation="authors", setpoint_window_cycles=1.0)
+    with pytest.raises(ValueError, match="ObservationBuilder"):
+        spec = ObservationSpec(stage=3, setpoint_window_cycles=1.0)
+        build_observation(spec, np.zeros(7), 0, [0] * 3)
+
+
+@pytest.mark.parametrize("history", [0, 3])
+def test_recentred_setpoints_look_the_same_whole_cycles_away(history):
+    """A run whose set-points sit whole cycles away (drift carried them) looks like one near 0."""
+    cfg = make_config(stage=3)
+    spec = ObservationSpec.from_config(cfg, history=history, setpoint_window_cycles=1.0)
+    period = cfg.optical_period_fs
+    rng = np.random.default_rng(4)
+    shift = np.array([3.0, -7.0, 12.0]) * period  # whole cycles, per stage
+    near, far = ObservationBuilder(spec), ObservationBuilder(spec)
+    sp = rng.uniform(-0.4, 0.4, 3) * period
+    e, p = rng.uniform(0, 1, 7), 0.3
+    np.testing.assert_allclose(near.reset(e, p, sp), far.reset(e, p, sp + shift), atol=1e-5)
+    for _ in range(60):  # a random walk of the set-points, crossing the window now and then
+        a = rng.uniform(-1, 1, 3)
+        sp = sp + a * 0.1 * period
+        e, p = rng.uniform(0, 1, 7), rng.uniform()
+        o_near, o_far = near.step(e, p, sp, a), far.step(e, p, sp + shift, a)
+        np.testing.assert_allclose(o_near, o_far, atol=1e-4)
+        assert o_far in spec.space()
+        ref = far.setpoint_reference_cycles - near.setpoint_reference_cycles
+        np.testing.assert_array_equal(ref, [3.0, -7.0, 12.0])
+        cols = spec.setpoint_columns
+        assert np.all(np.abs(o_far[cols]) <= 1.0 + 1e-6)  # the newest frame: within the window
+    # absolute set-points (the default) do not look the same
+    plain = ObservationSpec.from_config(cfg, history=history)
+    a_obs = ObservationBuilder(plain).reset(e, p, sp)
+    b_obs = ObservationBuilder(plain).reset(e, p, sp + shift)
+    assert not np.allclose(a_obs, b_obs)
+
+
+def test_recentring_is_per_env_and_reset_clears_it():
+    spec = ObservationSpec(stage=2, setpoint_window_cycles=0.75)
+    period = spec.optical_period_fs
+    b = ObservationBuilder(spec, num_envs=2)
+    e = np.zeros((2, 3))
+    b.reset(e, np.zeros(2), np.zeros((2, 2)))
+    obs = b.step(e, np.zeros(2), np.array([[0.8, 0.1], [0.5, -2.2]]) * period, np.zeros((2, 2)))
+    np.testing.assert_array_equal(b.setpoint_reference_cycles, [[1.0, 0.0], [0.0, -2.0]])
+    np.testing.assert_allclose(obs[:, spec.setpoint_columns], [[-0.2, 0.1], [0.5, -0.2]], atol=1e-5)
+    b.reset(e, np.zeros(2), np.zeros((2, 2)), mask=[True, False])
+    np.testing.assert_array_equal(b.setpoint_reference_cycles, [[0.0, 0.0], [0.0, -2.0]])

@@ -130,3 +130,46 @@ def test_memory_observation_is_the_same_in_the_env_and_both_vector_envs():
                 block = o_env[k * width : (k + 1) * width]
                 np.testing.assert_array_equal(block[: spec.frame_dim], o_env[: spec.frame_dim])
                 np.testing.assert_array_equal(block[spec.frame_dim :], 0.0)
+
+
+@pytest.mark.parametrize("kind", ["gymnasium", "sb3"])
+def test_continue_prob_carries_some_episodes_on_and_restarts_the_rest(kind):
+    """An ending episode either starts afresh (set-points 0, a new delay error) or carries on
+    from where it is (set-points and delays unchanged, only the step count restarts)."""
+    n, steps = 16, 4
+    kwargs = dict(num_envs=n, stage=3, mode="hard", max_episode_steps=steps, continue_prob=0.5)
+    if kind == "sb3":
+        from ops_sim_ros.vec_env import OpsSb3VecEnv
+
+        venv = OpsSb3VecEnv(seed=3, **kwargs)
+        venv.reset()
+    else:
+        venv = OpsVectorEnv(**kwargs)
+        venv.reset(seed=3)
+    action = np.full((n, 3), 0.7, dtype=np.float32)
+    carried = fresh = 0
+    for _ in range(3):  # episodes
+        for t in range(steps):
+            before = venv.sim.setpoints_fs.copy(), venv.sim.step_count.copy()
+            if kind == "sb3":
+                venv.step_async(action)
+                _, _, dones, _ = venv.step_wait()
+            else:
+                _, _, _, dones, _ = venv.step(action)
+            assert dones.all() == (t == steps - 1) and (dones.any() == dones.all())
+        after = venv.sim.setpoints_fs
+        moved = before[0] + action * venv.sim.max_step_fs  # where the last step took them
+        restarted = np.all(after == 0.0, axis=1)
+        kept = np.all(np.isclose(after, moved), axis=1)
+        assert np.all(restarted ^ kept)  # each env one or the other
+        assert np.all(venv.sim.step_count == 0) and not venv.sim.last.truncated.any()
+        carried, fresh = carried + kept.sum(), fresh + restarted.sum()
+    assert carried > 5 and fresh > 5  # about half each of 48 episode ends
+    # the episodes that carried on are longer runs: their set-points went on moving
+    assert np.abs(venv.sim.setpoints_fs).max() > 2 * steps * venv.sim.max_step_fs * 0.7
+
+
+def test_continue_prob_is_checked():
+    for bad in (-0.1, 1.0, True):
+        with pytest.raises(ValueError, match="continue_prob"):
+            OpsVectorEnv(num_envs=2, stage=3, continue_prob=bad)
