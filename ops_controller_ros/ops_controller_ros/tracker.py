@@ -34,7 +34,8 @@ fed forward) plus a small known excursion.
 
 Detector noise: the first two readings of an acquisition are taken at the same set-points; their
 difference measures the noise variance, which widens the residual tolerance and the tracking
-excursion (``detector_noise`` gives a floor when the noise is known).
+excursion (``detector_noise`` gives a floor when the noise is known); from a noise std of
+``noisy_threshold`` on, fits take ``noisy_window`` readings instead of ``window``.
 
 Assumptions, stated: the landscape is periodic in each delay with the optical period (the envelope
 walk-off of a few cycles against a pulse of hundreds of fs is ignored), the random walk of the
@@ -60,6 +61,11 @@ from .calibration import ModelCalibration
 @dataclass(frozen=True)
 class TrackerParams:
     window: int = 7  # readings per fit (>= 2: the phase diversity)
+    # On a noisy detector (noise std, assumed or measured, >= noisy_threshold) a fit takes
+    # max(window, noisy_window) readings: more readings average the noise, while a short window
+    # follows the drift's knots sooner (measured: docs/tracker.md, issue 20).
+    noisy_window: int = 10
+    noisy_threshold: float = 0.005
     acquire_dither_cycles: float = 0.02  # excursion per stage while acquiring (actuator size)
     hold_dither_cycles: float = 0.012  # excursion while tracking (its length over the stages)
     hold_pattern: str = "all"  # excursion: one stage at a time, or all at once (Hadamard)
@@ -100,6 +106,8 @@ class TrackerParams:
     def __post_init__(self):
         checks = (
             ("window", self.window >= 2, ">= 2"),
+            ("noisy_window", self.noisy_window >= 2, ">= 2"),
+            ("noisy_threshold", self.noisy_threshold > 0, "> 0"),
             ("acquire_dither_cycles", 0 < self.acquire_dither_cycles <= 0.25, "in (0, 0.25]"),
             ("hold_dither_cycles", 0 <= self.hold_dither_cycles <= 0.25, "in [0, 0.25]"),
             ("hold_pattern", self.hold_pattern in ("one", "all"), "one or all"),
@@ -159,7 +167,9 @@ class PhaseTracker:
         u = np.asarray(setpoints_fs, dtype=np.float64).reshape(self.stage) / self.period_fs
         self._base = u.copy()  # set-points (cycles) around which the excursions are made
         self._last_command = u.copy()
-        self._history: deque = deque(maxlen=self.params.window)
+        noisy = self.params.detector_noise >= self.params.noisy_threshold
+        self._window_len = self._fit_window(noisy)
+        self._history: deque = deque(maxlen=self._window_len)
         self.estimate = None  # hidden delay errors now, cycles (None: not acquired)
         self.drift = np.zeros(self.stage)  # per step, cycles
         self.residual = float("nan")
@@ -175,6 +185,16 @@ class PhaseTracker:
         self._objective = float("nan")
         self._search = None  # the global search under way (a generator), if any
         self.last_power = float("nan")
+
+    def _fit_window(self, noisy: bool) -> int:
+        """Readings per fit: ``window``, or on a noisy detector the longer ``noisy_window``."""
+        p = self.params
+        return max(p.window, p.noisy_window) if noisy else p.window
+
+    @property
+    def window_length(self) -> int:
+        """The readings each fit takes now (longer once the detector is found noisy)."""
+        return self._window_len
 
     @property
     def locked(self) -> bool:
@@ -221,6 +241,9 @@ class PhaseTracker:
             if np.array_equal(last_u, self._last_command):  # the same set-points twice
                 diff = y[:-1] - last_y[:-1]
                 self._noise_var = float(np.mean(diff * diff)) / 2.0
+                if self._noise_var >= self.params.noisy_threshold**2:
+                    self._window_len = self._fit_window(True)
+                    self._history = deque(self._history, maxlen=self._window_len)
         reading = (self._last_command.copy(), y)
         self._history.append(reading)
         if self._recovering is not None:
@@ -228,7 +251,7 @@ class PhaseTracker:
             self._recover()
         elif self.estimate is not None:
             self._track()
-        elif len(self._history) == self.params.window or self._search is not None:
+        elif len(self._history) == self._window_len or self._search is not None:
             self._search_step()
         self._unlocked_readings = 0 if self.locked else self._unlocked_readings + 1
         if self._unlocked_readings >= self.params.calibration_reset_after:
@@ -549,7 +572,7 @@ class PhaseTracker:
         self._base = self._base * ratio
         self._last_command = self._last_command * ratio
         self._history = deque(
-            ((h[0] * ratio, h[1]) for h in self._history), maxlen=self.params.window
+            ((h[0] * ratio, h[1]) for h in self._history), maxlen=self._window_len
         )
 
     def _recover(self) -> None:
@@ -574,10 +597,10 @@ class PhaseTracker:
         if self.residual <= self._tolerance():
             self._bad_fits = 0
             self.estimate, self.drift = _wrap(x), drift
-            self._history = deque(readings, maxlen=p.window)
+            self._history = deque(readings, maxlen=self._window_len)
             self._recovering = None
-        elif len(readings) >= p.window:
+        elif len(readings) >= self._window_len:
             self._recovering = None
             self.estimate = None
-            self._history = deque(readings[-p.window :], maxlen=p.window)
+            self._history = deque(readings[-self._window_len :], maxlen=self._window_len)
             self._search_step()

@@ -26,6 +26,13 @@ PARAMS = [
     ParamSpec("detector", "polarizer", "what the detector sees", choices=DETECTORS),
     ParamSpec("window", _D.window, "readings per fit", low=2, high=64),
     ParamSpec(
+        "noisy_window",
+        _D.noisy_window,
+        "readings per fit once the detector is found noisy (the longer of the two is used)",
+        low=2,
+        high=64,
+    ),
+    ParamSpec(
         "hold_dither_cycles", _D.hold_dither_cycles, "excursion while tracking", low=0.0, high=0.25
     ),
     ParamSpec(
@@ -47,6 +54,7 @@ PARAMS = [
 ]
 _TRACKER_FIELDS = (
     "window",
+    "noisy_window",
     "hold_dither_cycles",
     "hold_pattern",
     "detector_noise",

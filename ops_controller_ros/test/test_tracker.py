@@ -72,6 +72,23 @@ def test_holds_on_a_rig_noisier_than_its_model(env):
     assert np.mean(held) > 0.9, held  # the window fit of the constant errors held ~0.7 here
 
 
+def test_a_noisy_detector_found_from_the_readings_lengthens_the_fit_window():
+    """The noise is measured from the first two readings (the same set-points twice): a noisy
+    detector it is not told of makes its fits take noisy_window readings; a clean one keeps
+    window; told of the noise, it starts with the long window."""
+    _, clean, _ = run("extreme", 3, steps=12)
+    _, noisy, _ = run("extreme", 3, steps=12, env=dict(detector_noise=0.01))
+    p = TrackerParams()
+    assert p.noisy_window > p.window
+    assert clean.window_length == p.window and len(clean._window()[0]) <= p.window
+    assert noisy.window_length == p.noisy_window
+    assert len(noisy._window()[0]) == p.noisy_window  # twelve readings in, ten kept
+    told = PhaseTracker(make_config(stage=5), TrackerParams(detector_noise=0.01))
+    assert told.window_length == p.noisy_window
+    shorter = PhaseTracker(make_config(stage=5), TrackerParams(window=12, detector_noise=0.01))
+    assert shorter.window_length == 12  # the longer of the two
+
+
 def test_registry_builds_it_and_bad_parameters_are_named():
     cfg = make_config(stage=3)
     assert isinstance(make_controller("tracker", cfg), PhaseTracker)
