@@ -104,7 +104,8 @@ def main() -> int:
         f"average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end)"
     )
     if args.out:
-        out = {"args": vars(args), "overall": total, "per_seed": runs}
+        load = [round(v, 2) for v in os.getloadavg()]
+        out = {"args": vars(args), "overall": total, "per_seed": runs, "load_average_end": load}
         Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
     return 0
 

@@ -1,0 +1,79 @@
+"""The continuous-operation table over DDS beside the in-process one (issue 20).
+
+Reads the JSON files `scripts/bench_continuous_dds.py --out` wrote (default
+docs/results/continuous_dds/CELL.json, CELL = tracker_MODE_600s, model_n5_MODE_600s or
+spgd_MODE_300s) and the in-process `evaluate --continuous --out` results of the same controller
+and mode (docs/results/continuous/CELL/evaluation.json, the longest run stored), and prints a
+markdown table: readings >= 0.95 after the first lock, lock losses (< 0.8), the longest, the
+worst reading after the lock, and the difference of the locked fractions.
+
+Usage (after `source setup.bash`):
+  python scripts/continuous_dds_table.py [--dds docs/results/continuous_dds]
+      [--inprocess docs/results/continuous]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CELL = re.compile(r"^(tracker|spgd|model_n5)_(easy|medium|hard|extreme)_(\d+)s$")
+MODES = ("easy", "medium", "hard", "extreme")
+
+
+def inprocess_figures(root: Path, kind: str, mode: str) -> tuple[str, dict] | None:
+    """The longest stored in-process run of ``kind`` in ``mode``: (its folder, overall)."""
+    best = None
+    for path in sorted(root.glob(f"{kind}_{mode}*/evaluation.json")):
+        data = json.loads(path.read_text())
+        steps = int(data.get("continuous_steps", 0)) * len(data.get("seeds", []))
+        overall = data["splits"]["test"]["overall"]
+        if best is None or steps > best[0]:
+            best = (steps, path.parent.name, overall, data)
+    if best is None:
+        return None
+    _, name, overall, data = best
+    return f"{name} ({data['continuous_steps']} × {len(data['seeds'])})", overall
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--dds", default=str(REPO / "docs/results/continuous_dds"))
+    ap.add_argument("--inprocess", default=str(REPO / "docs/results/continuous"))
+    args = ap.parse_args()
+    rows = []
+    for path in Path(args.dds).glob("*.json"):
+        match = CELL.match(path.stem)
+        if not match:
+            continue
+        kind, mode, seconds = match.groups()
+        rows.append((("tracker", "model_n5", "spgd").index(kind), MODES.index(mode), kind, mode,
+                     int(seconds), json.loads(path.read_text())))  # fmt: skip
+    print(
+        "| controller | mode | DDS: time, readings | locked after first lock | losses | longest | "
+        "worst after lock | load at the end | in process (run) | in process locked | difference |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for _, _, kind, mode, seconds, data in sorted(rows, key=lambda r: r[:2]):
+        o = data["overall"]
+        readings = sum(int(r.get("readings", 0)) for r in data.get("per_seed", []))
+        name = {"model_n5": f"models/n5_{mode}", "spgd": "SPGD-PID"}.get(kind, kind)
+        load = data.get("load_average_end", ["?"])[0]  # 1-min load average at the end
+        ref = inprocess_figures(Path(args.inprocess), kind, mode)
+        ref_cells = ["—", "—", "—"]
+        if ref is not None:
+            diff = 100 * (o["locked_fraction"] - ref[1]["locked_fraction"])
+            ref_cells = [ref[0], f"{100 * ref[1]['locked_fraction']:.2f} %", f"{diff:+.2f} points"]
+        print(
+            f"| {name} | {mode} | {seconds} s, {readings} | {100 * o['locked_fraction']:.2f} % | "
+            f"{o['losses']} | {o['longest_loss']} | {o['worst_after_lock']:.4f} | "
+            f"{load} | " + " | ".join(ref_cells) + " |"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
