@@ -102,6 +102,16 @@ class TrackerParams:
     # to a wrong estimate, or to readings that did not belong together (a starved machine), must
     # not keep the tracker from ever locking again (seen: gain 0.56 on a true 1.0).
     calibration_reset_after: int = 500
+    # Wavelength from known whole-cycle moves: every hop_every tracking readings one stage's
+    # set-point moves by hop_cycles periods of the model (the landscape repeats, so the lock
+    # stays where the model is right); a model period off by a fraction r moves that stage's
+    # phase by hop_cycles * r, which the path fits of the next readings measure (r is fitted
+    # with the path), and the wavelength is corrected by hop_gain of it per fit (0: no moves).
+    # A move waits for a clean lock (no knot in the window, a reading >= 0.98, the stage's drift
+    # < 0.01 cycles per step).
+    hop_every: int = 10
+    hop_cycles: int = 2
+    hop_gain: float = 0.05  # per fit of a window that holds a move (about 6 fits per move)
 
     def __post_init__(self):
         checks = (
@@ -126,6 +136,9 @@ class TrackerParams:
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
             ("step_budget_ms", self.step_budget_ms >= 0, ">= 0"),
             ("calibration_every", self.calibration_every >= 1, ">= 1"),
+            ("hop_every", self.hop_every >= 0, ">= 0"),
+            ("hop_cycles", 1 <= self.hop_cycles <= 10, "in [1, 10]"),
+            ("hop_gain", 0 < self.hop_gain <= 1, "in (0, 1]"),
             ("calibration_memory", self.calibration_memory >= 1, ">= 1"),
             ("calibration_reset_after", self.calibration_reset_after >= 1, ">= 1"),
         )
@@ -138,6 +151,10 @@ class TrackerParams:
 
 
 SEARCH_CHUNK = 128  # candidates scored per unit of the global search
+MAX_HOP_RATIO = 0.05  # largest period error one fit may report (relative)
+HOP_RATIO_PRIOR = 0.05  # prior std of the period error fitted over a window with a move
+HOP_POWER = 0.98  # a whole-cycle move waits for a reading at least this good
+HOP_MAX_DRIFT = 0.01  # ... and for a stage drifting slower than this (cycles per step)
 
 
 def _wrap(cycles):
@@ -181,6 +198,12 @@ class PhaseTracker:
         self._unlocked_readings = 0  # readings since the tracker last held a lock
         self.calibration_resets = 0
         self.knots = 0  # knot hypotheses taken while tracking
+        self.hops = 0  # whole-cycle moves made to measure the wavelength
+        self._hop = None  # (stage, cycles) of the move in the command just sent
+        self._hop_next = 0  # tick of the next move
+        self._hop_tick = None  # tick of the reading after the last move
+        self._knot_tick = -(10**9)  # tick of the last knot hypothesis taken
+        self._ratio = 0.0
         self._path = np.zeros((0, self.stage))
         self._objective = float("nan")
         self._search = None  # the global search under way (a generator), if any
@@ -220,10 +243,29 @@ class PhaseTracker:
                 signs = self._rng.choice((-1.0, 1.0), size=self.stage)
                 u = self._base + p.acquire_dither_cycles * signs
         else:
+            if self._hop is None:  # (a command repeated before its reading keeps its move)
+                self._hop = self._plan_hop()
             u = self._base + self._hold_dither() * self._excursion(self._tick)
         u = np.clip(u, -self.range_cycles, self.range_cycles)
         self._last_command = u
         return u * self.period_fs
+
+    def _plan_hop(self):
+        """A whole-cycle move of one stage's set-point now, if one is due: (stage, cycles)."""
+        p = self.params
+        if not p.hop_every or self._bad_fits or self._tick < self._hop_next:
+            return None
+        # only on a clean lock: not right after a knot of the drift, not on a low reading
+        if self._tick - self._knot_tick < self._window_len or not self.last_power >= HOP_POWER:
+            return None
+        j = self.hops % self.stage
+        if abs(self.drift[j]) >= HOP_MAX_DRIFT:  # a fast drift: its knots cost more than a hop
+            return None
+        k = -p.hop_cycles if self._base[j] > 0 else p.hop_cycles  # towards the middle
+        self._base[j] += k
+        self.hops += 1
+        self._hop_next = self._tick + p.hop_every
+        return j, k
 
     def observe(self, power: float, pulse_energies=None) -> None:
         """The reading produced by the last :meth:`command`; updates the estimate."""
@@ -246,11 +288,12 @@ class PhaseTracker:
                     self._history = deque(self._history, maxlen=self._window_len)
         reading = (self._last_command.copy(), y)
         self._history.append(reading)
+        hop, self._hop = self._hop, None
         if self._recovering is not None:
             self._recovering.append(reading)
             self._recover()
         elif self.estimate is not None:
-            self._track()
+            self._track(hop)
         elif len(self._history) == self._window_len or self._search is not None:
             self._search_step()
         self._unlocked_readings = 0 if self.locked else self._unlocked_readings + 1
@@ -419,39 +462,48 @@ class PhaseTracker:
         w = self.params.walk_cycles
         return max(6.0 * self.model.jitter_sigma_cycles, 1e-4) if w is None else w
 
-    def _fit_path(self, x_now, drift, u, y, iterations: int, drift_prior=None):
+    def _fit_path(self, x_now, drift, u, y, iterations: int, drift_prior=None, ratio=False):
         """Moving-horizon fit of the window: the errors at every reading X (K, N) and the drift
         mu (N,), most probable given the readings (std sqrt(tolerance + noise)), a random walk
         between readings (X_k - X_k-1 - mu, std ``walk``) and the drift's prior (the present
         estimate, std ``drift_prior_cycles``). Starts from x_now (the errors at the latest
         reading) and the drift; returns (x at the latest reading, mu, mean squared residual of
-        the readings)."""
+        the readings).
+
+        ``ratio``: also fit r, the model's period over the true one minus 1 (a reading's phase is
+        u + r (u - mean u) + X): identifiable when the window holds a whole-cycle move. It is
+        left in ``self._ratio`` and the returned x is the error as the model sees it (r applied
+        at the latest reading)."""
         p = self.params
         k, n = u.shape
+        u_centred = u - u.mean(axis=0)
         r_sd = (p.residual_tolerance + max(p.detector_noise**2, self._noise_var or 0.0)) ** 0.5
         w_sd = self._walk_sigma()
         m_sd = np.full(n, p.drift_prior_cycles) if drift_prior is None else drift_prior
         age = np.arange(k - 1, -1, -1, dtype=np.float64)
         path = x_now[None, :] - age[:, None] * drift[None, :]
-        z = np.concatenate([path.ravel(), drift])
+        z = np.concatenate([path.ravel(), drift, [0.0] if ratio else []])
         mu0 = drift.copy()
         d = z.size
+        nz = k * n + n  # the path and the drift (r, if fitted, is the last variable)
         # constant rows: the walk between readings and the drift prior (linear)
         walk = np.zeros(((k - 1) * n, d))
         for i in range(1, k):
             rows = slice((i - 1) * n, i * n)
             walk[rows, i * n : (i + 1) * n] = np.eye(n)
             walk[rows, (i - 1) * n : i * n] = -np.eye(n)
-            walk[rows, k * n :] = -np.eye(n)
+            walk[rows, k * n : nz] = -np.eye(n)
         walk /= w_sd
-        prior = np.zeros((n, d))
-        prior[:, k * n :] = np.diag(1.0 / m_sd)
+        prior = np.zeros((n + ratio, d))
+        prior[:n, k * n : nz] = np.diag(1.0 / m_sd)
+        if ratio:
+            prior[n, nz] = 1.0 / HOP_RATIO_PRIOR
         h = 1e-4
         offsets = np.concatenate([np.zeros((1, n)), h * np.eye(n)])  # (N + 1, N)
 
         def residuals(z, with_jacobian):
             xs = z[: k * n].reshape(k, n)
-            pts = u + xs
+            pts = u + xs + (z[nz] * u_centred if ratio else 0.0)
             if with_jacobian:
                 pts = (pts[:, None, :] + offsets[None]).reshape(-1, n)
             out = self.stacker.evaluate(pts * self.period_fs)
@@ -465,9 +517,11 @@ class PhaseTracker:
                 data_jac = np.zeros((k * m, d))
                 for i in range(k):
                     data_jac[i * m : (i + 1) * m, i * n : (i + 1) * n] = -jac_k[i] / r_sd
+                if ratio:  # d phase / d r = the centred set-points
+                    data_jac[:, nz] = -np.einsum("krn,kn->kr", jac_k, u_centred).ravel() / r_sd
                 jac = np.concatenate([data_jac, walk, prior])
             data = ((y - pred) / r_sd).ravel()
-            res = np.concatenate([data, walk @ z, (z[k * n :] - mu0) / m_sd])
+            res = np.concatenate([data, walk @ z, prior @ z - prior[:, k * n : nz] @ mu0])
             return res, jac, float(np.mean((y - pred) ** 2))
 
         res, jac, data_cost = residuals(z, True)
@@ -487,18 +541,29 @@ class PhaseTracker:
                 lam *= 10.0
         self._path = z[: k * n].reshape(k, n)  # the fitted errors at every reading
         self._objective = cost  # the fit's whole normalized cost (readings, walk, prior)
-        return z[(k - 1) * n : k * n], z[k * n :], data_cost
+        self._ratio = float(z[nz]) if ratio else 0.0
+        x = z[(k - 1) * n : k * n] + self._ratio * u_centred[-1]
+        return x, z[k * n : nz], data_cost
 
-    def _track(self) -> None:
-        """Re-fit the window's path of errors and the drift from the prediction."""
+    def _track(self, hop=None) -> None:
+        """Re-fit the window's path of errors and the drift from the prediction (``hop``: the
+        whole-cycle move of the last command, if any: it measures the period, and its step is not
+        taken for a knot)."""
         p = self.params
         u, y, _ = self._window()
+        if hop is not None:
+            self._hop_tick = self._tick
+        # a window that holds a whole-cycle move (the reading before it too) measures the period
+        ratio = self._hop_tick is not None and self._tick - self._hop_tick <= len(u) - 2
         x, drift, cost = self._fit_path(
-            self.estimate + self.drift, self.drift, u, y, p.track_iterations
+            self.estimate + self.drift, self.drift, u, y, p.track_iterations, ratio=ratio
         )
+        fitted_ratio = self._ratio
         lost = self._tolerance(p.lost_tolerance)
-        if p.knot_prior_cycles > 0 and (
-            cost > self._tolerance(p.knot_tolerance) or self._walk_jump() > p.knot_walk_sigmas
+        if (
+            hop is None
+            and p.knot_prior_cycles > 0
+            and (cost > self._tolerance(p.knot_tolerance) or self._walk_jump() > p.knot_walk_sigmas)
         ):
             # A knot of one stage's drift? Fit the window with that stage's drift let loose, one
             # hypothesis per stage, and keep the best if it explains the readings clearly better
@@ -506,8 +571,9 @@ class PhaseTracker:
             x, drift, cost = self._knot_fit(x, drift, cost, u, y)
         if cost > lost:  # a knot of the drift, a fast walk: iterate further before giving up
             x, drift, cost = self._fit_path(
-                self.estimate + self.drift, self.drift, u, y, p.iterations
+                self.estimate + self.drift, self.drift, u, y, p.iterations, ratio=ratio
             )
+            fitted_ratio = self._ratio
         self.residual = cost
         if self.residual > lost:
             # The readings left the model (a knot of the drift, a jump): keep the prediction
@@ -522,6 +588,8 @@ class PhaseTracker:
         self.estimate = _wrap(x)
         if p.calibrate:
             self._calibrate(u, self._path)
+        if ratio:
+            self._correct_period(fitted_ratio)
 
     def _knot_fit(self, x, drift, cost, u, y):
         """The best of the present fit (x, drift, cost) and one fit per stage and side with that
@@ -542,6 +610,8 @@ class PhaseTracker:
                     best, best_path, best_obj, won = fit, self._path, self._objective, True
         self._path, self._objective = best_path, best_obj
         self.knots += won
+        if won:
+            self._knot_tick = self._tick
         return best
 
     def _walk_jump(self) -> float:
@@ -552,17 +622,17 @@ class PhaseTracker:
         step = self._path[-1] - self._path[-2] - self.drift
         return float(np.max(np.abs(step))) / self._walk_sigma()
 
-    def _calibrate(self, u: np.ndarray, path: np.ndarray) -> None:
-        """Feed the window's fit to the calibration; every ``calibration_every`` readings, move
-        the model's wavelength and pulse width and re-express the state in the new cycles."""
-        raw = self._window(raw=True)[1]
-        optics = self.params.calibrate_optics
-        self.calibration.observe(self.stacker, u, path, raw, self.period_fs, optics)
-        if not optics or self._tick % self.params.calibration_every:
-            return
+    def _correct_period(self, r: float) -> None:
+        """A window fit with a whole-cycle move found the model's period off by r (model over
+        true, minus 1): move the wavelength by hop_gain of it."""
+        r = float(np.clip(r, -MAX_HOP_RATIO, MAX_HOP_RATIO))
+        self.calibration.wavelength_nm /= 1.0 + self.params.hop_gain * r
+        self._adopt_optics()
+
+    def _adopt_optics(self) -> None:
+        """Take the calibration's wavelength and width into the model and re-express the
+        state (estimate, drift, set-points, the window's commands) in the new cycles."""
         old_period = self.period_fs
-        if not self.calibration.update_optics():
-            return
         self.stacker = self.calibration.stacker()
         self.period_fs = self.calibration.period_fs
         ratio = old_period / self.period_fs  # the same fs are this many new cycles per old one
@@ -574,6 +644,17 @@ class PhaseTracker:
         self._history = deque(
             ((h[0] * ratio, h[1]) for h in self._history), maxlen=self._window_len
         )
+
+    def _calibrate(self, u: np.ndarray, path: np.ndarray) -> None:
+        """Feed the window's fit to the calibration; every ``calibration_every`` readings, move
+        the model's wavelength and pulse width and re-express the state in the new cycles."""
+        raw = self._window(raw=True)[1]
+        optics = self.params.calibrate_optics
+        self.calibration.observe(self.stacker, u, path, raw, self.period_fs, optics)
+        if not optics or self._tick % self.params.calibration_every:
+            return
+        if self.calibration.update_optics():
+            self._adopt_optics()
 
     def _recover(self) -> None:
         """A local re-fit of the errors and the drift to the readings since the fit failed,

@@ -42,6 +42,13 @@ PARAMS = [
         choices=("all", "one"),
     ),
     ParamSpec("detector_noise", _D.detector_noise, "assumed detector noise std", low=0.0, high=1.0),
+    ParamSpec(
+        "hop_every",
+        _D.hop_every,
+        "readings between whole-cycle moves that measure the wavelength (0: none)",
+        low=0,
+        high=100000,
+    ),
     # A rig runs in real time: the global search is spread over readings (the in-process
     # evaluation's default, 0, does it in one reading and locks a few steps sooner).
     ParamSpec(
@@ -58,6 +65,7 @@ _TRACKER_FIELDS = (
     "hold_dither_cycles",
     "hold_pattern",
     "detector_noise",
+    "hop_every",
     "step_budget_ms",
 )
 _MODEL_FIELDS = ("wavelength_nm", "pulse_fwhm_fs", "detector")

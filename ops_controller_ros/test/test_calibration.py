@@ -32,8 +32,23 @@ def test_detector_gain_and_offset_are_estimated_while_locked(seed):
     assert est["detector_offset"] == pytest.approx(0.02, abs=0.003), est
     # no calibration phase that costs the lock: held from step 50 on
     assert power[50:].min() > 0.95, power[50:].min()
-    # the model was told nothing: its wavelength and width stay the nominal ones
-    assert est["wavelength_nm"] == 1030.0 and est["pulse_fwhm_fs"] == 1000.0
+    # the optics are nominal here: the wavelength estimate stays near 1030 nm, the width is not
+    # estimated
+    assert est["wavelength_nm"] == pytest.approx(1030.0, rel=0.003), est
+    assert est["pulse_fwhm_fs"] == 1000.0
+
+
+@pytest.mark.parametrize(("true_nm", "seed"), [(1050.6, 2001), (1019.7, 2002)])
+def test_a_wavelength_it_is_not_told_of_is_estimated_while_locked(true_nm, seed):
+    """A rig 2 % or 1 % off the model's 1030 nm: the tracker's whole-cycle moves measure the
+    period; the estimate comes within 0.3 % and stays there, and the lock holds meanwhile."""
+    ctl, power = _run({"wavelength_nm": true_nm}, 600, seed)
+    assert ctl.hops > 20
+    assert ctl.calibration.estimates()["wavelength_nm"] == pytest.approx(true_nm, rel=0.003)
+    assert np.mean(power[50:] >= 0.95) > 0.98, np.mean(power[50:] >= 0.95)
+    # without the moves the model keeps its wavelength (what an unseen period would do)
+    ctl, _ = _run({"wavelength_nm": true_nm}, 200, seed, TrackerParams(hop_every=0))
+    assert ctl.calibration.estimates()["wavelength_nm"] == 1030.0
 
 
 def test_without_calibration_a_detector_off_by_thirty_percent_is_not_acquired():
