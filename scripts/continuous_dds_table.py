@@ -20,7 +20,7 @@ import re
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-CELL = re.compile(r"^(tracker|spgd|model_n5)_(easy|medium|hard|extreme)_(\d+)s$")
+CELL = re.compile(r"^(tracker|spgd|model_n5)_(easy|medium|hard|extreme)_(\d+)s(_[\w-]+)?$")
 MODES = ("easy", "medium", "hard", "extreme")
 
 
@@ -49,15 +49,18 @@ def main() -> int:
         match = CELL.match(path.stem)
         if not match:
             continue
-        kind, mode, seconds = match.groups()
+        kind, mode, seconds, _ = match.groups()
         rows.append((("tracker", "model_n5", "spgd").index(kind), MODES.index(mode), kind, mode,
                      int(seconds), json.loads(path.read_text())))  # fmt: skip
     print(
         "| controller | mode | DDS: time, readings | locked after first lock | losses | longest | "
-        "worst after lock | load at the end | in process (run) | in process locked | difference |"
+        "worst after lock | nice | load at the end | in process (run) | in process locked | "
+        "difference |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for _, _, kind, mode, seconds, data in sorted(rows, key=lambda r: r[:2]):
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for _, _, kind, mode, seconds, data in sorted(
+        rows, key=lambda r: (*r[:2], r[5]["args"].get("nice", 0))
+    ):
         o = data["overall"]
         readings = sum(int(r.get("readings", 0)) for r in data.get("per_seed", []))
         name = {"model_n5": f"models/n5_{mode}", "spgd": "SPGD-PID"}.get(kind, kind)
@@ -70,7 +73,7 @@ def main() -> int:
         print(
             f"| {name} | {mode} | {seconds} s, {readings} | {100 * o['locked_fraction']:.2f} % | "
             f"{o['losses']} | {o['longest_loss']} | {o['worst_after_lock']:.4f} | "
-            f"{load} | " + " | ".join(ref_cells) + " |"
+            f"{data['args'].get('nice', 0)} | {load} | " + " | ".join(ref_cells) + " |"
         )
     return 0
 
