@@ -108,7 +108,7 @@ class TrackerParams:
     # phase by hop_cycles * r, which the path fits of the next readings measure (r is fitted
     # with the path), and the wavelength is corrected by hop_gain of it per fit (0: no moves).
     # A move waits for a clean lock (no knot in the window, a reading >= 0.98, the stage's drift
-    # < 0.01 cycles per step).
+    # < 0.005 cycles per step).
     hop_every: int = 10
     hop_cycles: int = 2
     hop_gain: float = 0.05  # per fit of a window that holds a move (about 6 fits per move)
@@ -154,7 +154,7 @@ SEARCH_CHUNK = 128  # candidates scored per unit of the global search
 MAX_HOP_RATIO = 0.05  # largest period error one fit may report (relative)
 HOP_RATIO_PRIOR = 0.05  # prior std of the period error fitted over a window with a move
 HOP_POWER = 0.98  # a whole-cycle move waits for a reading at least this good
-HOP_MAX_DRIFT = 0.01  # ... and for a stage drifting slower than this (cycles per step)
+HOP_MAX_DRIFT = 0.005  # ... and for a stage drifting slower than this (cycles per step)
 
 
 def _wrap(cycles):
