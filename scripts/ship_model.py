@@ -62,6 +62,12 @@ def main() -> int:
         help="write only metadata.json (of the run) and learning.csv: an ablation for the figures",
     )
     ap.add_argument(
+        "--final",
+        action="store_true",
+        help="ship the model at the end of training (RUN/model.zip) instead of RUN/best: a run "
+        "without periodic evaluations (e.g. a fine-tune measured by its continuous runs)",
+    )
+    ap.add_argument(
         "--eval",
         action="store_true",
         help="with --curve-only: also evaluate RUN/best on the held-out seeds into DEST/eval",
@@ -73,10 +79,11 @@ def main() -> int:
         n = learning_curve(args.run / "logs" / "progress.csv", args.dest / "learning.csv")
         print(f"[ship] {args.dest}: metadata and learning curve ({n} evaluations)", flush=True)
         return evaluate(args.run / "best", args) if args.eval else 0
-    best = args.run / "best"
+    best = args.run if args.final else args.run / "best"
     for name in ("model.zip", "metadata.json"):
         if not (best / name).is_file():
-            print(f"error: {best / name} is missing (train with --eval-freq)", file=sys.stderr)
+            hint = "" if args.final else " (train with --eval-freq, or ship --final)"
+            print(f"error: {best / name} is missing{hint}", file=sys.stderr)
             return 2
     args.dest.mkdir(parents=True, exist_ok=True)
     for name in ("model.zip", "metadata.json"):
