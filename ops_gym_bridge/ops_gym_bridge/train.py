@@ -476,6 +476,12 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         args.observation = str(previous["observation_spec"].get("observation", "rig"))
     if args.reward is None:  # ... or before training rewards
         args.reward = "paper"
+    window = float((previous.get("observation_spec") or {}).get("setpoint_window_cycles", 0.0))
+    if args.setpoint_window is not None and args.setpoint_window != window:
+        raise TrainError(
+            f"--resume: --setpoint-window {args.setpoint_window:g} differs from the model's "
+            f"{window:g} in {out} (a resumed model keeps its observation)"
+        )
     _fill_from_model(args, previous)
     _fill_set_defaults(args)
     params = _hyperparams(

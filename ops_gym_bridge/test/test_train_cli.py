@@ -246,6 +246,8 @@ def test_long_run_training_options_are_saved_and_checked(trained, tmp_path):
     assert again.returncode == 0, again.stdout + again.stderr
     meta = read_metadata(tmp_path / "again")
     assert meta["continue_prob"] == 0.5 and meta["observation_spec"]["setpoint_window_cycles"] == 1
+    done = run("train", "--resume", "--out", out, "--setpoint-window", 2, "--timesteps", 10)
+    assert done.returncode == 2 and "--setpoint-window 2 differs from the model's 1" in done.stderr
     for extra, message in (
         (["--continue-prob", 0.5], "--continue-prob needs the in-process batched"),
         (["--continue-prob", 1.0, "--n-envs", 2], "--continue-prob must be in [0, 1)"),
