@@ -7,7 +7,8 @@ Two in-process runs of ``--steps`` steps per seed (N = 5, testing split, polariz
   it commands -(error + last step's drift). Its readings >= 0.95 are the most a controller that
   learns the drift from its readings can hold.
 * **tracker**: the tracker (its defaults, or ``--param KEY=VALUE``), with the readings below 0.95
-  counted by the steps since the last knot, the knots that caused one, and the estimate's error.
+  counted by the steps since the last knot, the knots that caused one, the estimate's error and
+  the compute per reading (``command`` + ``observe``: a node at 100 Hz has 10 ms).
 
 Usage (after `source setup.bash`):
   python scripts/tracker_knots.py --mode extreme --steps 3000 --seeds 1000 [--param window=10]
@@ -54,12 +55,18 @@ def tracker_run(mode: str, steps: int, seed: int, params: dict) -> dict:
     slope = noise.slope.copy()
     last_knot = -(10**9)
     power, since = np.empty(steps), np.empty(steps, dtype=int)
+    compute_ms = np.empty(steps)
     error = np.full(steps, np.nan)
     knots = []  # (step from which the new slope acts, its change in cycles per step)
     for t in range(steps):
-        r = env.step_setpoints(ctl.command())
+        t0 = time.perf_counter()
+        command = ctl.command()
+        t1 = time.perf_counter()
+        r = env.step_setpoints(command)
         power[t] = r.power[0]
+        t2 = time.perf_counter()
         ctl.observe(float(r.power[0]), r.pulse_energies[0])
+        compute_ms[t] = (t1 - t0 + time.perf_counter() - t2) * 1e3
         since[t] = t - last_knot
         change = np.abs(noise.slope[0] - slope[0]).max() / period
         if change > 1e-12:  # redrawn at the end of this step: acts from the next
@@ -69,7 +76,14 @@ def tracker_run(mode: str, steps: int, seed: int, params: dict) -> dict:
         if ctl.estimate is not None:
             truth = (noise.walk + noise.mu)[0] / period
             error[t] = np.abs((ctl.estimate - truth + 0.5) % 1.0 - 0.5).max()
-    return {"power": power, "since": since, "error": error, "knots": knots, "ctl": ctl}
+    return {
+        "power": power,
+        "since": since,
+        "error": error,
+        "knots": knots,
+        "ctl": ctl,
+        "compute_ms": compute_ms,
+    }
 
 
 def main() -> int:
@@ -110,6 +124,12 @@ def main() -> int:
             f"change (cycles/step) median {np.median(sizes):.4f}, of those {np.median(hit):.4f}"
             if hit
             else f"  knots: {len(starts)}, none followed by a reading < 0.95"
+        )
+        ms = run["compute_ms"][first:]
+        print(
+            "  compute per reading after the first lock, ms: median/p99/max "
+            + "/".join(f"{v:.1f}" for v in (np.median(ms), np.percentile(ms, 99), ms.max()))
+            + f"; readings over 10 ms: {100 * np.mean(ms > 10):.1f} %"
         )
         err = run["error"][first:]
         print(
