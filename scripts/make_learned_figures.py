@@ -59,7 +59,9 @@ def table_rows(models: list[dict]) -> list[str]:
     ]
     for m in models:
         meta, test, curve = m["meta"], m["test"], m["curve"]
-        minutes = float(curve[-1]["minutes"]) if curve else float("nan")
+        # a fine-tune without periodic evaluations has no curve: its runs' wall time, summed
+        wall = sum(float(h.get("wall_s") or 0.0) for h in meta.get("history", []))
+        minutes = float(curve[-1]["minutes"]) if curve else wall / 60.0
         n, mode = meta["stage"], meta["mode"]
         n5 = n == 5 and mode in GOALS_N5
         goal = f">= {GOALS_N5[mode]}" if n5 else "-"
@@ -130,7 +132,7 @@ def main() -> int:
     fig, axes = plt.subplots(1, 3, figsize=(15, 5), sharey=True)
     models, ablations = load_models(), load_ablations()
     for ax, mode in zip(axes, MODES, strict=True):
-        for m in (m for m in models if m["meta"]["mode"] == mode):
+        for m in (m for m in models if m["meta"]["mode"] == mode and m["curve"]):
             five = m["meta"]["stage"] == 5
             style = {"lw": 2.2 if five else 1.4, "ls": "-" if five else ":", "color": "black"}
             plot_curve(ax, m, run_label(m["meta"], f"models/{m['name']}"), **style)
