@@ -476,13 +476,13 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         args.observation = str(previous["observation_spec"].get("observation", "rig"))
     if args.reward is None:  # ... or before training rewards
         args.reward = "paper"
-    window = float((previous.get("observation_spec") or {}).get("setpoint_window_cycles", 0.0))
+    window = _model_setpoint_window(previous)
     if args.setpoint_window is not None and args.setpoint_window != window:
         raise TrainError(
             f"--resume: --setpoint-window {args.setpoint_window:g} differs from the model's "
             f"{window:g} in {out} (a resumed model keeps its observation)"
         )
-    _fill_from_model(args, previous)
+    args.setpoint_window = window
     _fill_set_defaults(args)
     params = _hyperparams(
         previous.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
@@ -523,7 +523,8 @@ def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> T
     for key in ("mode", "split", "episode_steps", "n_envs", "reward", "continue_prob"):
         if "--" + key.replace("_", "-") not in given and initial.get(key) is not None:
             setattr(args, key, initial[key])
-    _fill_from_model(args, initial)
+    if args.setpoint_window is None:  # a fine-tune may change it; by default the model's
+        args.setpoint_window = _model_setpoint_window(initial)
     _fill_set_defaults(args)
     params = _hyperparams(
         initial.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
@@ -534,11 +535,10 @@ def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> T
     return TrainRun(args, command_line, out, params, previous)
 
 
-def _fill_from_model(args, metadata: dict) -> None:
-    """The set-point window not given: the model's (0 for models from before the option)."""
-    if args.setpoint_window is None:
-        spec = metadata.get("observation_spec") or {}
-        args.setpoint_window = float(spec.get("setpoint_window_cycles", 0.0))
+def _model_setpoint_window(metadata: dict) -> float:
+    """A model's set-point window (0 for models from before the option)."""
+    spec = metadata.get("observation_spec") or {}
+    return float(spec.get("setpoint_window_cycles", 0.0))
 
 
 def _fill_set_defaults(args) -> None:
