@@ -390,18 +390,14 @@ class ObservationBuilder:
         return self._output()
 
     def _output(self) -> np.ndarray:
+        out = self._buf.copy()  # (history 0: one slot of one frame, no action)
         if self._window > 0:
             newest = self._buf[:, 0, self._sp_cols]
             away = np.abs(newest - self._ref) > self._window
             if away.any():
                 self._ref[away] = np.round(newest[away])
-            out = self._buf.copy()
             out[:, :, self._sp_cols] -= self._ref[:, None, :]
-        else:
-            out = self._buf.copy()
         obs = out.reshape(self.num_envs, -1)
-        if not self.spec.history:
-            obs = obs[:, : self._frame]
         return obs[0] if self.single else obs
 
 
