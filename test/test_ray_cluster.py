@@ -1,6 +1,7 @@
 """The benchmark on a real two-node Ray cluster: the head on host A, a worker node on host B
 (two network namespaces on one link, test/ray_cluster.py), token authentication on, nothing of the
-project on B. A subset of the smoke profile (6 of its 17 runs; the whole profile is
+project on B. A subset of the smoke profile (10 runs: two seeds of each agent, so that a node B
+that joins late still gets a second run; the whole profile is
 scripts/bench_ray_cluster.py, docs/cluster.md) runs on both nodes, B joining while the benchmark
 runs (its CPU is used from then on); node B is killed while a
 training run is on it: that run is retried on A and everything is stored; the same command again
@@ -24,8 +25,9 @@ pytest.importorskip("ray")
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(600)]
 
 SUBSET = ["--controllers", "spgd", "--algos", "ppo", "td3", "--modes", "easy", "hard"]
-SUBSET += ["--extra-stages"]
-RUNS = {f"n2_{m}_{r}" for m in ("easy", "hard") for r in ("spgd", "ppo_s0", "td3_s0")}
+SUBSET += ["--seeds", "0", "1", "--extra-stages"]
+RUNS = {f"n2_{m}_spgd" for m in ("easy", "hard")}
+RUNS |= {f"n2_{m}_{a}_s{s}" for m in ("easy", "hard") for a in ("ppo", "td3") for s in (0, 1)}
 ON_B = re.compile(r"\[benchmark\] (n2_\w+) running on node 10\.231\.0\.2 ")
 
 
@@ -41,7 +43,7 @@ def wait_for_victim(bench, timeout: float) -> tuple[str, bool]:
         on_b = ON_B.findall(text)
         started = set(re.findall(r"\[benchmark\] start (n2_\w+)", text))
         done = set(re.findall(r"done (n2_\w+): final", text))
-        live = [r for r in on_b if r not in done and r.endswith("_s0")]
+        live = [r for r in on_b if r not in done and re.search(r"_s\d+$", r)]
         finished_on_b = any(r in done for r in on_b)
         if live and (finished_on_b or started >= RUNS):
             return live[-1], finished_on_b
