@@ -10,7 +10,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
     ],
-    install_requires=["setuptools", "numpy", "gymnasium", "matplotlib"],
+    install_requires=["setuptools", "numpy", "gymnasium", "matplotlib", "threadpoolctl"],
     zip_safe=True,
     maintainer="OPS developers",
     maintainer_email="ops-dev@example.com",

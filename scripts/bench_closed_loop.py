@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from doc_sections import write_section
 
 REPO = Path(__file__).resolve().parents[1]
 SECTION = "## Closed loop over DDS"
@@ -148,15 +149,6 @@ def stats(times):
     return med * 1e6, p99 * 1e6, 1.0 / med
 
 
-def write_section(text: str):
-    path = REPO / "docs" / "benchmarks.md"
-    doc = path.read_text() if path.exists() else "# Benchmarks\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    found = pattern.search(doc)
-    doc = pattern.sub(lambda _: text, doc) if found else doc.rstrip() + "\n\n" + text
-    path.write_text(doc)
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--stage", type=int, default=5)
@@ -251,7 +243,7 @@ def main():
     text = "\n".join(lines)
     print(text)
     if not args.no_write:
-        write_section(text)
+        write_section(SECTION, text)
         print("[bench] wrote docs/benchmarks.md")
 
 

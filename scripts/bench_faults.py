@@ -38,6 +38,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from doc_sections import write_section
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "test"))
 SECTION = "## Faults"
@@ -271,18 +273,6 @@ def table(all_results: dict) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str, title: str = SECTION) -> None:
-    path = REPO / "docs" / "benchmarks.md"
-    doc = path.read_text()
-    start = doc.find(title)
-    if start < 0:
-        doc = doc.rstrip("\n") + "\n\n" + text + "\n"
-    else:
-        end = doc.find("\n## ", start + len(title))
-        doc = doc[:start] + text + ("\n" + doc[end + 1 :] if end >= 0 else "\n")
-    path.write_text(doc)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--record", action="store_true", help=argparse.SUPPRESS)
@@ -360,7 +350,7 @@ def main(argv=None) -> int:
     )
     print(section)
     if not args.no_docs:
-        write_section(section, args.section)
+        write_section(args.section, section)
     return 0
 
 

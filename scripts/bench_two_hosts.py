@@ -26,12 +26,12 @@ import argparse
 import json
 import os
 import platform
-import re
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+from doc_sections import write_section
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
@@ -106,15 +106,6 @@ def measure(pair, args, logdir: Path) -> dict:
     finally:
         stop(sim)
     return res
-
-
-def write_section(text: str) -> None:
-    path = REPO / "docs" / "benchmarks.md"
-    doc = path.read_text()
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    found = pattern.search(doc)
-    doc = pattern.sub(lambda _: text, doc) if found else doc.rstrip() + "\n\n" + text
-    path.write_text(doc)
 
 
 def main():
@@ -198,7 +189,7 @@ def main():
     text = "\n".join(lines)
     print(text)
     if not args.no_write:
-        write_section(text)
+        write_section(SECTION, text)
         print("[bench] wrote docs/benchmarks.md")
 
 

@@ -157,6 +157,20 @@ HOP_POWER = 0.98  # a whole-cycle move waits for a reading at least this good
 HOP_MAX_DRIFT = 0.005  # ... and for a stage drifting slower than this (cycles per step)
 
 
+@dataclass(frozen=True)
+class PathFits:
+    """M moving-horizon fits (:meth:`PhaseTracker._fit_paths`): errors at the latest reading
+    x (M, N), drift (M, N), mean squared residual of the readings (M,), the path (M, K, N), the
+    whole normalized cost (M,) and the fitted period error r (M,; zeros when not fitted)."""
+
+    x: np.ndarray
+    drift: np.ndarray
+    data_cost: np.ndarray
+    path: np.ndarray
+    objective: np.ndarray
+    ratio: np.ndarray
+
+
 def _wrap(cycles):
     """Reduce to [-1/2, 1/2) cycle."""
     return cycles - np.floor(cycles + 0.5)
@@ -468,82 +482,132 @@ class PhaseTracker:
         between readings (X_k - X_k-1 - mu, std ``walk``) and the drift's prior (the present
         estimate, std ``drift_prior_cycles``). Starts from x_now (the errors at the latest
         reading) and the drift; returns (x at the latest reading, mu, mean squared residual of
-        the readings).
+        the readings), and leaves the fitted path and the whole cost in ``self._path`` and
+        ``self._objective``.
 
         ``ratio``: also fit r, the model's period over the true one minus 1 (a reading's phase is
         u + r (u - mean u) + X): identifiable when the window holds a whole-cycle move. It is
         left in ``self._ratio`` and the returned x is the error as the model sees it (r applied
         at the latest reading)."""
+        prior = None if drift_prior is None else np.asarray(drift_prior)[None]
+        fit = self._fit_paths(x_now[None], drift[None], u, y, iterations, prior, ratio)
+        self._path, self._objective, self._ratio = fit.path[0], fit.objective[0], fit.ratio[0]
+        return fit.x[0], fit.drift[0], float(fit.data_cost[0])
+
+    def _fit_paths(self, x_now, drift, u, y, iterations: int, drift_prior=None, ratio=False):
+        """:meth:`_fit_path` for M starts at once (x_now, drift: (M, N); drift_prior: (M, N)
+        or None), each its own Levenberg-Marquardt: the hypotheses of a knot or a recovery cost
+        one batched evaluation of the physics per iteration instead of one each (the tracker's
+        slowest readings, measured in docs/tracker.md). Returns a :class:`PathFits`."""
         p = self.params
         k, n = u.shape
+        m = x_now.shape[0]
         u_centred = u - u.mean(axis=0)
         r_sd = (p.residual_tolerance + max(p.detector_noise**2, self._noise_var or 0.0)) ** 0.5
         w_sd = self._walk_sigma()
-        m_sd = np.full(n, p.drift_prior_cycles) if drift_prior is None else drift_prior
+        if drift_prior is None:
+            drift_prior = np.full((m, n), p.drift_prior_cycles)
         age = np.arange(k - 1, -1, -1, dtype=np.float64)
-        path = x_now[None, :] - age[:, None] * drift[None, :]
-        z = np.concatenate([path.ravel(), drift, [0.0] if ratio else []])
+        path = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
+        extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
+        z = np.concatenate([path.reshape(m, k * n), drift, extra], axis=1)
         mu0 = drift.copy()
-        d = z.size
+        d = z.shape[1]
         nz = k * n + n  # the path and the drift (r, if fitted, is the last variable)
-        # constant rows: the walk between readings and the drift prior (linear)
+        # The normal equations by their parts (no full Jacobian is formed): the readings (block
+        # diagonal in the path, plus r), the walk between readings (linear, the same for every
+        # start) and the drift prior (diagonal, per start).
         walk = np.zeros(((k - 1) * n, d))
         for i in range(1, k):
             rows = slice((i - 1) * n, i * n)
             walk[rows, i * n : (i + 1) * n] = np.eye(n)
             walk[rows, (i - 1) * n : i * n] = -np.eye(n)
             walk[rows, k * n : nz] = -np.eye(n)
-        walk /= w_sd
-        prior = np.zeros((n + ratio, d))
-        prior[:n, k * n : nz] = np.diag(1.0 / m_sd)
+        walk_normal = walk.T @ walk / w_sd**2
+        prior_w = np.zeros((m, d))  # the prior's weights (1 / std^2) on the drift and r
+        prior_w[:, k * n : nz] = 1.0 / drift_prior**2
         if ratio:
-            prior[n, nz] = 1.0 / HOP_RATIO_PRIOR
+            prior_w[:, nz] = 1.0 / HOP_RATIO_PRIOR**2
+        prior_mean = np.zeros((m, d))
+        prior_mean[:, k * n : nz] = mu0
         h = 1e-4
         offsets = np.concatenate([np.zeros((1, n)), h * np.eye(n)])  # (N + 1, N)
+        blocks = (np.arange(k)[:, None] * n + np.arange(n)[None]).reshape(k, n)  # path indices
 
-        def residuals(z, with_jacobian):
-            xs = z[: k * n].reshape(k, n)
-            pts = u + xs + (z[nz] * u_centred if ratio else 0.0)
+        def readings(z, with_jacobian):
+            """Predicted minus measured readings (M, K, R), d prediction / d path (M, K, R, N)."""
+            xs = z[:, : k * n].reshape(m, k, n)
+            pts = u[None] + xs + (z[:, nz, None, None] * u_centred[None] if ratio else 0.0)
             if with_jacobian:
-                pts = (pts[:, None, :] + offsets[None]).reshape(-1, n)
-            out = self.stacker.evaluate(pts * self.period_fs)
+                pts = pts[:, :, None, :] + offsets[None, None]  # (M, K, N + 1, N)
+            out = self.stacker.evaluate(pts.reshape(-1, n) * self.period_fs)
             pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
-            jac = None
-            if with_jacobian:
-                pred = pred.reshape(k, n + 1, -1)
-                jac_k = (pred[:, 1:] - pred[:, :1]).transpose(0, 2, 1) / h  # (K, R, N)
-                pred = pred[:, 0]
-                m = jac_k.shape[1]
-                data_jac = np.zeros((k * m, d))
-                for i in range(k):
-                    data_jac[i * m : (i + 1) * m, i * n : (i + 1) * n] = -jac_k[i] / r_sd
-                if ratio:  # d phase / d r = the centred set-points
-                    data_jac[:, nz] = -np.einsum("krn,kn->kr", jac_k, u_centred).ravel() / r_sd
-                jac = np.concatenate([data_jac, walk, prior])
-            data = ((y - pred) / r_sd).ravel()
-            res = np.concatenate([data, walk @ z, prior @ z - prior[:, k * n : nz] @ mu0])
-            return res, jac, float(np.mean((y - pred) ** 2))
+            if not with_jacobian:
+                return pred.reshape(m, k, -1) - y[None], None
+            pred = pred.reshape(m, k, n + 1, -1)
+            jac_k = (pred[:, :, 1:] - pred[:, :, :1]).transpose(0, 1, 3, 2) / h  # M, K, R, N
+            return pred[:, :, 0] - y[None], jac_k
 
-        res, jac, data_cost = residuals(z, True)
-        cost = float(res @ res)
-        lam = 1e-3
+        def objective(z, err):
+            dz = z - prior_mean
+            walk_res = z @ walk.T
+            return (
+                np.einsum("mkr,mkr->m", err, err) / r_sd**2
+                + np.einsum("mr,mr->m", walk_res, walk_res) / w_sd**2
+                + np.einsum("md,md,md->m", dz, dz, prior_w)
+            )
+
+        def normal_equations(z, err, jac_k):
+            """J^T J (M, D, D) and J^T r (M, D) of the whole cost at z."""
+            jtj = np.broadcast_to(walk_normal, (m, d, d)).copy()
+            jtr = z @ walk_normal
+            data_jtj = np.einsum("mkri,mkrj->mkij", jac_k, jac_k) / r_sd**2  # (M, K, N, N)
+            jtj[:, blocks[:, :, None], blocks[:, None, :]] += data_jtj
+            jtr[:, blocks] += np.einsum("mkri,mkr->mki", jac_k, err) / r_sd**2
+            if ratio:  # d phase / d r = the centred set-points
+                g = np.einsum("mkrn,kn->mkr", jac_k, u_centred)
+                cross = np.einsum("mkri,mkr->mki", jac_k, g) / r_sd**2
+                jtj[:, blocks, nz] += cross
+                jtj[:, nz, blocks] += cross
+                jtj[:, nz, nz] += np.einsum("mkr,mkr->m", g, g) / r_sd**2
+                jtr[:, nz] += np.einsum("mkr,mkr->m", g, err) / r_sd**2
+            idx = np.arange(d)
+            jtj[:, idx, idx] += prior_w
+            jtr += prior_w * (z - prior_mean)
+            return jtj, jtr
+
+        err, jac_k = readings(z, True)
+        cost = objective(z, err)
+        data_cost = np.mean(err * err, axis=(1, 2))
+        lam = np.full(m, 1e-3)
+        eye = np.eye(d)
         for _ in range(iterations):
-            jtj = jac.T @ jac
-            step = -np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-12), jac.T @ res)
-            step = np.clip(step, -0.1, 0.1)
-            trial = z + step
-            t_res, _, t_data = residuals(trial, False)
-            t_cost = float(t_res @ t_res)
-            if t_cost < cost:
-                z, cost, data_cost, lam = trial, t_cost, t_data, lam * 0.3
-                res, jac, _ = residuals(z, True)
-            else:
-                lam *= 10.0
-        self._path = z[: k * n].reshape(k, n)  # the fitted errors at every reading
-        self._objective = cost  # the fit's whole normalized cost (readings, walk, prior)
-        self._ratio = float(z[nz]) if ratio else 0.0
-        x = z[(k - 1) * n : k * n] + self._ratio * u_centred[-1]
-        return x, z[k * n : nz], data_cost
+            jtj, jtr = normal_equations(z, err, jac_k)
+            diag = np.einsum("mii->mi", jtj)
+            a = jtj + (lam[:, None] * (diag + 1e-12))[:, :, None] * eye[None]
+            step = -np.linalg.solve(a, jtr[:, :, None])[:, :, 0]
+            trial = z + np.clip(step, -0.1, 0.1)
+            t_err, _ = readings(trial, False)
+            t_cost = objective(trial, t_err)
+            better = t_cost < cost
+            lam = np.where(better, lam * 0.3, lam * 10.0)
+            if better.any():
+                z = np.where(better[:, None], trial, z)
+                cost = np.where(better, t_cost, cost)
+                data_cost = np.where(better, np.mean(t_err * t_err, axis=(1, 2)), data_cost)
+                new_err, new_jac = readings(z, True)
+                err = np.where(better[:, None, None], new_err, err)
+                jac_k = np.where(better[:, None, None, None], new_jac, jac_k)
+        fitted_ratio = z[:, nz] if ratio else np.zeros(m)
+        x = z[:, (k - 1) * n : k * n] + fitted_ratio[:, None] * u_centred[-1]
+        return PathFits(
+            x=x,
+            drift=z[:, k * n : nz],
+            data_cost=data_cost,
+            path=z[:, : k * n].reshape(m, k, n),  # the fitted errors at every reading
+            objective=cost,  # each fit's whole normalized cost (readings, walk, prior)
+            ratio=fitted_ratio,
+        )
 
     def _track(self, hop=None) -> None:
         """Re-fit the window's path of errors and the drift from the prediction (``hop``: the
@@ -593,22 +657,27 @@ class PhaseTracker:
 
     def _knot_fit(self, x, drift, cost, u, y):
         """The best of the present fit (x, drift, cost) and one fit per stage and side with that
-        stage's drift prior widened to ``knot_prior_cycles``; a hypothesis wins only if its whole
-        cost plus ``knot_penalty`` is below the best so far (the path of the winner is kept)."""
+        stage's drift prior widened to ``knot_prior_cycles`` (all fitted at once); taken in turn,
+        a hypothesis wins only if its whole cost plus ``knot_penalty`` is below the best so far
+        (the path of the winner is kept)."""
         p = self.params
+        n = self.stage
+        stages = np.repeat(np.arange(n), 2)  # each stage, then each side of its new slope
+        signs = np.tile([1.0, -1.0], n)  # (both starts: one reading is even in the knot)
+        shift = np.zeros((2 * n, n))
+        shift[np.arange(2 * n), stages] = signs * p.knot_start_cycles
+        prior = np.full((2 * n, n), p.drift_prior_cycles)
+        prior[np.arange(2 * n), stages] = p.knot_prior_cycles
+        x0 = (self.estimate + self.drift)[None] + shift
+        d0 = self.drift[None] + shift
+        fits = self._fit_paths(x0, d0, u, y, p.iterations, drift_prior=prior)
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
         won = False
-        for j in range(self.stage):
-            prior = np.full(self.stage, p.drift_prior_cycles)
-            prior[j] = p.knot_prior_cycles
-            for sign in (1.0, -1.0):  # the new slope's side: both starts (one reading is even)
-                x0, d0 = self.estimate + self.drift, self.drift.copy()
-                x0[j] += sign * p.knot_start_cycles
-                d0[j] += sign * p.knot_start_cycles
-                fit = self._fit_path(x0, d0, u, y, p.iterations, drift_prior=prior)
-                if self._objective + p.knot_penalty < best_obj:
-                    best, best_path, best_obj, won = fit, self._path, self._objective, True
-        self._path, self._objective = best_path, best_obj
+        for i in range(2 * n):
+            if fits.objective[i] + p.knot_penalty < best_obj:
+                best = (fits.x[i], fits.drift[i], float(fits.data_cost[i]))
+                best_path, best_obj, won = fits.path[i], fits.objective[i], True
+        self._path, self._objective, self._ratio = best_path, best_obj, 0.0
         self.knots += won
         if won:
             self._knot_tick = self._tick
@@ -672,8 +741,11 @@ class PhaseTracker:
             d = self.drift.copy()
             d[j] = -d[j]
             drifts.append(d)
-        fits = [self._fit_path(self.estimate, d, u, y, p.iterations) for d in drifts]
-        x, drift, cost = min(fits, key=lambda f: f[2])
+        starts = np.tile(self.estimate, (len(drifts), 1))
+        fits = self._fit_paths(starts, np.array(drifts), u, y, p.iterations)
+        i = int(np.argmin(fits.data_cost))
+        x, drift, cost = fits.x[i], fits.drift[i], float(fits.data_cost[i])
+        self._path, self._objective, self._ratio = fits.path[i], fits.objective[i], 0.0
         self.residual = cost
         if self.residual <= self._tolerance():
             self._bad_fits = 0

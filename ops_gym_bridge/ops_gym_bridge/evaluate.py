@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from ops_sim_ros.config import SPLITS, make_config
 from ops_sim_ros.observation import OBSERVATION_SETS
+from ops_sim_ros.threads import limit_blas_threads
 
 from . import cli_args, continuous
 from .envs import EPISODE_STEPS
@@ -438,6 +439,7 @@ def run(argv: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> None:
+    limit_blas_threads()
     try:
         code = run(argv)
     except KeyboardInterrupt:

@@ -25,6 +25,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 
 from .config import LIMITS, MAX_STAGE
+from .threads import limit_blas_threads
 
 TOPIC_INTENSITY = "ops/intensity"
 TOPIC_POWER = "ops/power"
@@ -216,8 +217,10 @@ def run_node(make_node: Callable[[], Node], args=None) -> int:
 
     A :class:`ParameterError` raised while building the node stops it before it spins, with the
     message on stderr and exit code 2; a :class:`NodeFatalError` raised while spinning stops it
-    with the message and exit code 1. Returns the process exit code.
+    with the message and exit code 1. Returns the process exit code. BLAS runs on one thread
+    (:func:`~ops_sim_ros.threads.limit_blas_threads`) unless the environment says otherwise.
     """
+    limit_blas_threads()
     rclpy.init(args=args)
     node = None
     code = 0

@@ -1,0 +1,29 @@
+"""One BLAS thread per process unless the user asks for more.
+
+The physics, the tracker's fits and the policies' numpy work are small matrix products: a second
+BLAS thread gains nothing there, and on a busy machine (a node beside another node, a training
+beside a rig) an OpenBLAS thread that waits for a core stalls the product it belongs to. Measured
+(docs/benchmarks.md, "BLAS threads"): the tracker's slowest reading in extreme mode took 415 ms
+with OpenBLAS's default of one thread per core on a loaded 2-core machine, 21 ms with one thread.
+Every node (``run_node``) and the ``train`` / ``evaluate`` CLIs call :func:`limit_blas_threads`
+first; a user who sets ``OPENBLAS_NUM_THREADS`` (or ``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS``)
+keeps that choice.
+"""
+
+from __future__ import annotations
+
+import os
+
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def limit_blas_threads(threads: int = 1) -> bool:
+    """Limit the BLAS libraries loaded in this process to ``threads`` threads, unless one of
+    :data:`THREAD_VARIABLES` is set (the user's choice is kept). Returns whether it limited."""
+    if any(os.environ.get(name) for name in THREAD_VARIABLES):
+        return False
+    import numpy  # noqa: F401  (loads the BLAS library that the limit applies to)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=threads, user_api="blas")
+    return True

@@ -1,0 +1,104 @@
+#!/usr/bin/env python3
+"""The tracker's compute per reading, against a node's 10 ms at 100 Hz (issue 20).
+
+In process, in the testing environment (N = 5, polarizer detector): ``command`` + ``observe`` of
+every reading after the first lock (median, p99, max, share over 10 ms), with BLAS on one thread
+(what every node and CLI sets, ops_sim_ros.threads) and on the library's default (one per core),
+plus the time of one knot test (the 2N hypotheses of :meth:`PhaseTracker._knot_fit`) and one
+tracking fit on a locked state. Timings depend on the load: the 1-minute load average is printed
+and written beside them.
+
+Usage (after `source setup.bash`):
+  python scripts/bench_tracker_compute.py [--mode extreme] [--steps 3000] [--seeds 1000] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from doc_sections import write_section
+from tracker_knots import tracker_run
+
+SECTION = "## The tracker's compute per reading (issue 20)"
+
+
+def fit_times(ctl, repeats: int) -> tuple[float, float]:
+    """Median ms of one tracking fit and of one knot test on the tracker's present window."""
+    u, y, _ = ctl._window()
+    x, drift, p = ctl.estimate + ctl.drift, ctl.drift, ctl.params
+    state = (ctl._path, ctl._objective, ctl._ratio, ctl.knots, ctl._knot_tick)
+
+    def timed(call) -> float:
+        out = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            call()
+            out.append(time.perf_counter() - t0)
+        return 1e3 * float(np.median(out))
+
+    track = timed(lambda: ctl._fit_path(x, drift, u, y, p.track_iterations))
+    knot = timed(lambda: ctl._knot_fit(x, drift, 1.0, u, y))
+    ctl._path, ctl._objective, ctl._ratio, ctl.knots, ctl._knot_tick = state
+    return track, knot
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--mode", default="extreme")
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1000])
+    ap.add_argument("--repeats", type=int, default=30, help="calls per fit timing")
+    ap.add_argument("--write", action="store_true", help="write docs/benchmarks.md")
+    args = ap.parse_args()
+    cores = os.cpu_count() or 1
+    rows = []
+    for threads in (1, cores):
+        for seed in args.seeds:
+            with threadpool_limits(limits=threads, user_api="blas"):
+                run = tracker_run(args.mode, args.steps, seed, {})
+                track_ms, knot_ms = fit_times(run["ctl"], args.repeats)
+            power, ms = run["power"], run["compute_ms"]
+            first = int(np.argmax(power >= 0.95))
+            ms = ms[first:]
+            row = (
+                f"| {threads} | {seed} | {np.median(ms):.2f} | {np.percentile(ms, 99):.1f} | "
+                f"{ms.max():.1f} | {100 * np.mean(ms > 10):.2f} | {track_ms:.2f} | {knot_ms:.1f} | "
+                f"{100 * np.mean(power[first:] >= 0.95):.2f} | {os.getloadavg()[0]:.1f} |"
+            )
+            rows.append(row)
+            print(row, flush=True)
+    cmd = "python scripts/bench_tracker_compute.py " + " ".join(sys.argv[1:])
+    text = "\n".join(
+        [
+            SECTION,
+            "",
+            f"Command: `{cmd.strip()}` ({args.mode} mode, N = 5, testing split, {args.steps} "
+            f"steps per seed; machine: {platform.processor() or platform.machine()}, "
+            f"{cores} cores). Per reading after the first lock: `command` + `observe` of the "
+            "tracker in process; a node at 100 Hz has 10 ms. Fit timings: median of "
+            f"{args.repeats} calls on the run's last window (one tracking fit of "
+            "`track_iterations`; one knot test: the 2N hypotheses, fitted together).",
+            "",
+            "| BLAS threads | seed | median ms | p99 ms | max ms | readings > 10 ms, % | "
+            "tracking fit ms | knot test ms | readings >= 0.95, % | load (1 min) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+            *rows,
+            "",
+        ]
+    )
+    if args.write:
+        write_section(SECTION, text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
