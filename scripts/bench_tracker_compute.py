@@ -33,7 +33,7 @@ SECTION = "## The tracker's compute per reading (issue 20)"
 
 def fit_times(ctl, repeats: int) -> tuple[float, float]:
     """Median ms of one tracking fit and of one knot test on the tracker's present window."""
-    u, y, _ = ctl._window()
+    u, y, age = ctl._window()
     x, drift, p = ctl.estimate + ctl.drift, ctl.drift, ctl.params
     state = (ctl._path, ctl._objective, ctl._ratio, ctl.knots, ctl._knot_tick)
 
@@ -45,8 +45,8 @@ def fit_times(ctl, repeats: int) -> tuple[float, float]:
             out.append(time.perf_counter() - t0)
         return 1e3 * float(np.median(out))
 
-    track = timed(lambda: ctl._fit_path(x, drift, u, y, p.track_iterations))
-    knot = timed(lambda: ctl._knot_fit(x, drift, 1.0, u, y))
+    track = timed(lambda: ctl._fit_path(x, drift, u, y, age, p.track_iterations))
+    knot = timed(lambda: ctl._knot_fit(x, x, drift, 1.0, u, y, age))
     ctl._path, ctl._objective, ctl._ratio, ctl.knots, ctl._knot_tick = state
     return track, knot
 

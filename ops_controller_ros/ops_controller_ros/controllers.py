@@ -6,8 +6,10 @@ transport (the ROS nodes and the in-process evaluation drive them the same way):
 
 * ``reset(setpoints_fs)``: start again from these set-points (a new episode, a restarted rig);
 * ``command() -> np.ndarray``: the set-points (fs, one per stage) to apply now;
-* ``observe(power, pulse_energies)``: what the last command produced (P_N / P_max and the
-  detected slot energies, normalized as on ``/ops/intensity``).
+* ``observe(power, pulse_energies, steps=1)``: what the last command produced (P_N / P_max and
+  the detected slot energies, normalized as on ``/ops/intensity``), ``steps`` simulator steps
+  after the previous reading (more than 1 when a free-running simulator stepped before the
+  command came; the nodes count them, :mod:`ops_controller_ros.loop_node`).
 
 A controller is built from the *nominal* model of the rig (an :class:`~ops_sim_ros.config.OpsConfig`
 holding the wavelength, pulse width, detector, ...), never from the simulator's true state.
@@ -29,7 +31,7 @@ class Controller(Protocol):
 
     def command(self) -> np.ndarray: ...
 
-    def observe(self, power: float, pulse_energies=None) -> None: ...
+    def observe(self, power: float, pulse_energies=None, steps: int = 1) -> None: ...
 
 
 def _make_spgd(model, params: dict[str, Any], setpoints_fs, seed):

@@ -149,11 +149,12 @@ class SpgdPid:
         sign = 1.0 if self._phase == 0 else -1.0
         return self.setpoints_fs + sign * self.params.perturbation_fs * self._signs
 
-    def observe(self, power: float, pulse_energies=None) -> None:
+    def observe(self, power: float, pulse_energies=None, steps: int = 1) -> None:
         """The power measured with the last ``command()``; every second reading updates u.
 
-        SPGD uses the power only; ``pulse_energies`` is accepted for the common interface of
-        :mod:`ops_controller_ros.controllers`."""
+        SPGD uses the power only; ``pulse_energies`` and ``steps`` are accepted for the common
+        interface of :mod:`ops_controller_ros.controllers` (a gradient step has no model of
+        time)."""
         if self._walk:
             self._walk.pop(0)
             return

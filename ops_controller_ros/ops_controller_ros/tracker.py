@@ -208,7 +208,9 @@ class PhaseTracker:
         self._recovering = None  # readings since a fit failed, while re-locking locally
         self._bad_fits = 0
         self._noise_var = None  # detector noise variance measured from a repeated reading
-        self._tick = 0
+        self._tick = 0  # readings taken
+        self._step = 0  # simulator (or rig) steps up to the latest reading
+        self._gap = 1  # steps between the last two readings
         self._unlocked_readings = 0  # readings since the tracker last held a lock
         self.calibration_resets = 0
         self.knots = 0  # knot hypotheses taken while tracking
@@ -281,8 +283,13 @@ class PhaseTracker:
         self._hop_next = self._tick + p.hop_every
         return j, k
 
-    def observe(self, power: float, pulse_energies=None) -> None:
-        """The reading produced by the last :meth:`command`; updates the estimate."""
+    def observe(self, power: float, pulse_energies=None, steps: int = 1) -> None:
+        """The reading produced by the last :meth:`command`; updates the estimate.
+
+        ``steps``: the simulator (or rig) steps since the previous reading, 1 when every step's
+        reading is used (in process, lockstep). A free-running simulator steps every 10 ms
+        whether or not the command came: a late command costs a step on the old set-points,
+        and the drift moved the delays on by one more step than the reading before suggests."""
         if pulse_energies is None:
             raise ValueError("the tracker needs the detected pulse energies, not only the power")
         y = np.append(np.asarray(pulse_energies, dtype=np.float64).ravel(), float(power))
@@ -290,17 +297,22 @@ class PhaseTracker:
             raise ValueError(
                 f"expected {self.stacker.num_slots} finite pulse energies and a finite power"
             )
+        steps = int(steps)
+        if steps < 1:
+            raise ValueError(f"steps since the previous reading must be >= 1 (got {steps})")
         self.last_power = float(power)
         self._tick += 1
+        self._step += steps
+        self._gap = steps
         if self._noise_var is None and self._history:
-            last_u, last_y = self._history[-1]
+            last_u, last_y, _ = self._history[-1]
             if np.array_equal(last_u, self._last_command):  # the same set-points twice
                 diff = y[:-1] - last_y[:-1]
                 self._noise_var = float(np.mean(diff * diff)) / 2.0
                 if self._noise_var >= self.params.noisy_threshold**2:
                     self._window_len = self._fit_window(True)
                     self._history = deque(self._history, maxlen=self._window_len)
-        reading = (self._last_command.copy(), y)
+        reading = (self._last_command.copy(), y, self._step)
         self._history.append(reading)
         hop, self._hop = self._hop, None
         if self._recovering is not None:
@@ -326,7 +338,8 @@ class PhaseTracker:
         y = np.stack([h[1] for h in readings])
         if not raw:
             y = self.calibration.correct(y)
-        age = np.arange(len(u) - 1, -1, -1, dtype=np.float64)  # steps before the latest
+        steps = np.array([h[2] for h in readings], dtype=np.float64)
+        age = steps[-1] - steps  # steps before the latest
         return u, y, age
 
     def _excursion(self, tick: int) -> np.ndarray:
@@ -433,7 +446,7 @@ class PhaseTracker:
         estimate found readings later is carried forward by its drift."""
         p = self.params
         u, y, age = self._window()
-        started = self._tick
+        started = self._step
         drift = np.zeros(self.stage)
         cand = self._rng.uniform(-0.5, 0.5, size=(p.candidates, self.stage))
         scores = []
@@ -463,7 +476,7 @@ class PhaseTracker:
                 x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         self.residual = float(cost[i])
         if self.residual <= self._tolerance():
-            self._start_tracking(x[i] + (self._tick - started) * fitted_drift)
+            self._start_tracking(x[i] + (self._step - started) * fitted_drift)
             self.drift = fitted_drift
             self.acquisitions += 1
 
@@ -476,7 +489,7 @@ class PhaseTracker:
         w = self.params.walk_cycles
         return max(6.0 * self.model.jitter_sigma_cycles, 1e-4) if w is None else w
 
-    def _fit_path(self, x_now, drift, u, y, iterations: int, drift_prior=None, ratio=False):
+    def _fit_path(self, x_now, drift, u, y, age, iterations: int, drift_prior=None, ratio=False):
         """Moving-horizon fit of the window: the errors at every reading X (K, N) and the drift
         mu (N,), most probable given the readings (std sqrt(tolerance + noise)), a random walk
         between readings (X_k - X_k-1 - mu, std ``walk``) and the drift's prior (the present
@@ -490,11 +503,11 @@ class PhaseTracker:
         left in ``self._ratio`` and the returned x is the error as the model sees it (r applied
         at the latest reading)."""
         prior = None if drift_prior is None else np.asarray(drift_prior)[None]
-        fit = self._fit_paths(x_now[None], drift[None], u, y, iterations, prior, ratio)
+        fit = self._fit_paths(x_now[None], drift[None], u, y, age, iterations, prior, ratio)
         self._path, self._objective, self._ratio = fit.path[0], fit.objective[0], fit.ratio[0]
         return fit.x[0], fit.drift[0], float(fit.data_cost[0])
 
-    def _fit_paths(self, x_now, drift, u, y, iterations: int, drift_prior=None, ratio=False):
+    def _fit_paths(self, x_now, drift, u, y, age, iterations: int, drift_prior=None, ratio=False):
         """:meth:`_fit_path` for M starts at once (x_now, drift: (M, N); drift_prior: (M, N)
         or None), each its own Levenberg-Marquardt: the hypotheses of a knot or a recovery cost
         one batched evaluation of the physics per iteration instead of one each (the tracker's
@@ -507,7 +520,6 @@ class PhaseTracker:
         w_sd = self._walk_sigma()
         if drift_prior is None:
             drift_prior = np.full((m, n), p.drift_prior_cycles)
-        age = np.arange(k - 1, -1, -1, dtype=np.float64)
         path = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
         extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
         z = np.concatenate([path.reshape(m, k * n), drift, extra], axis=1)
@@ -518,11 +530,12 @@ class PhaseTracker:
         # diagonal in the path, plus r), the walk between readings (linear, the same for every
         # start) and the drift prior (diagonal, per start).
         walk = np.zeros(((k - 1) * n, d))
-        for i in range(1, k):
+        for i in range(1, k):  # X_i - X_i-1 - gap mu, std walk sqrt(gap) (gap: steps between)
             rows = slice((i - 1) * n, i * n)
-            walk[rows, i * n : (i + 1) * n] = np.eye(n)
-            walk[rows, (i - 1) * n : i * n] = -np.eye(n)
-            walk[rows, k * n : nz] = -np.eye(n)
+            gap = max(age[i - 1] - age[i], 1.0)
+            walk[rows, i * n : (i + 1) * n] = np.eye(n) / gap**0.5
+            walk[rows, (i - 1) * n : i * n] = -np.eye(n) / gap**0.5
+            walk[rows, k * n : nz] = -np.eye(n) * gap**0.5
         walk_normal = walk.T @ walk / w_sd**2
         prior_w = np.zeros((m, d))  # the prior's weights (1 / std^2) on the drift and r
         prior_w[:, k * n : nz] = 1.0 / drift_prior**2
@@ -614,13 +627,14 @@ class PhaseTracker:
         whole-cycle move of the last command, if any: it measures the period, and its step is not
         taken for a knot)."""
         p = self.params
-        u, y, _ = self._window()
+        u, y, age = self._window()
         if hop is not None:
             self._hop_tick = self._tick
         # a window that holds a whole-cycle move (the reading before it too) measures the period
         ratio = self._hop_tick is not None and self._tick - self._hop_tick <= len(u) - 2
+        predicted = self.estimate + self._gap * self.drift  # the errors now, by the drift
         x, drift, cost = self._fit_path(
-            self.estimate + self.drift, self.drift, u, y, p.track_iterations, ratio=ratio
+            predicted, self.drift, u, y, age, p.track_iterations, ratio=ratio
         )
         fitted_ratio = self._ratio
         lost = self._tolerance(p.lost_tolerance)
@@ -632,17 +646,17 @@ class PhaseTracker:
             # A knot of one stage's drift? Fit the window with that stage's drift let loose, one
             # hypothesis per stage, and keep the best if it explains the readings clearly better
             # (a wrong drift otherwise pulls every stage's estimate off within a few readings).
-            x, drift, cost = self._knot_fit(x, drift, cost, u, y)
+            x, drift, cost = self._knot_fit(predicted, x, drift, cost, u, y, age)
         if cost > lost:  # a knot of the drift, a fast walk: iterate further before giving up
             x, drift, cost = self._fit_path(
-                self.estimate + self.drift, self.drift, u, y, p.iterations, ratio=ratio
+                predicted, self.drift, u, y, age, p.iterations, ratio=ratio
             )
             fitted_ratio = self._ratio
         self.residual = cost
         if self.residual > lost:
             # The readings left the model (a knot of the drift, a jump): keep the prediction
             # once; the second time in a row, re-lock locally with larger known excursions.
-            self.estimate = _wrap(self.estimate + self.drift)
+            self.estimate = _wrap(predicted)
             self._bad_fits += 1
             if self._bad_fits >= p.misses:
                 self._recovering = []
@@ -655,7 +669,7 @@ class PhaseTracker:
         if ratio:
             self._correct_period(fitted_ratio)
 
-    def _knot_fit(self, x, drift, cost, u, y):
+    def _knot_fit(self, predicted, x, drift, cost, u, y, age):
         """The best of the present fit (x, drift, cost) and one fit per stage and side with that
         stage's drift prior widened to ``knot_prior_cycles`` (all fitted at once); taken in turn,
         a hypothesis wins only if its whole cost plus ``knot_penalty`` is below the best so far
@@ -668,9 +682,9 @@ class PhaseTracker:
         shift[np.arange(2 * n), stages] = signs * p.knot_start_cycles
         prior = np.full((2 * n, n), p.drift_prior_cycles)
         prior[np.arange(2 * n), stages] = p.knot_prior_cycles
-        x0 = (self.estimate + self.drift)[None] + shift
+        x0 = predicted[None] + shift
         d0 = self.drift[None] + shift
-        fits = self._fit_paths(x0, d0, u, y, p.iterations, drift_prior=prior)
+        fits = self._fit_paths(x0, d0, u, y, age, p.iterations, drift_prior=prior)
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
         won = False
         for i in range(2 * n):
@@ -688,8 +702,8 @@ class PhaseTracker:
         units of the walk's std (a knot shows here before the readings' residual grows)."""
         if self._path.shape[0] < 2:
             return 0.0
-        step = self._path[-1] - self._path[-2] - self.drift
-        return float(np.max(np.abs(step))) / self._walk_sigma()
+        step = self._path[-1] - self._path[-2] - self._gap * self.drift
+        return float(np.max(np.abs(step))) / (self._walk_sigma() * self._gap**0.5)
 
     def _correct_period(self, r: float) -> None:
         """A window fit with a whole-cycle move found the model's period off by r (model over
@@ -711,7 +725,7 @@ class PhaseTracker:
         self._base = self._base * ratio
         self._last_command = self._last_command * ratio
         self._history = deque(
-            ((h[0] * ratio, h[1]) for h in self._history), maxlen=self._window_len
+            ((h[0] * ratio, h[1], h[2]) for h in self._history), maxlen=self._window_len
         )
 
     def _calibrate(self, u: np.ndarray, path: np.ndarray) -> None:
@@ -731,18 +745,18 @@ class PhaseTracker:
         after a full window without success, a global acquisition."""
         p = self.params
         n = self.stage
-        self.estimate = _wrap(self.estimate + self.drift)  # the prediction for this reading
+        self.estimate = _wrap(self.estimate + self._gap * self.drift)  # this reading's prediction
         readings = self._recovering
         if len(readings) < p.recover_readings:
             return
-        u, y, _ = self._window(readings)
+        u, y, age = self._window(readings)
         drifts = [self.drift, np.zeros(n)]
         for j in range(n):
             d = self.drift.copy()
             d[j] = -d[j]
             drifts.append(d)
         starts = np.tile(self.estimate, (len(drifts), 1))
-        fits = self._fit_paths(starts, np.array(drifts), u, y, p.iterations)
+        fits = self._fit_paths(starts, np.array(drifts), u, y, age, p.iterations)
         i = int(np.argmin(fits.data_cost))
         x, drift, cost = fits.x[i], fits.drift[i], float(fits.data_cost[i])
         self._path, self._objective, self._ratio = fits.path[i], fits.objective[i], 0.0
