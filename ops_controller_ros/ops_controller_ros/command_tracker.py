@@ -19,6 +19,19 @@ import numpy as np
 
 #: float32 on the wire: set-points of up to ~100 fs come back to ~1e-5 fs.
 MATCH_TOLERANCE_FS = 1e-3
+#: A gap longer than this (a stalled loop, a simulator that ran on for seconds) counts as this
+#: many steps: a drift prediction over it means nothing anyway.
+MAX_STEPS_BETWEEN_READINGS = 100
+
+
+def steps_between(last_seq, seq) -> int:
+    """Simulator steps between two readings from the DDS publication sequence numbers of their
+    ``ops/power`` messages (the simulator publishes one per step): 1 when either is unknown
+    (``None``: the first reading, a middleware without numbers) or the numbers went back (a
+    restarted simulator); at most :data:`MAX_STEPS_BETWEEN_READINGS`."""
+    if not isinstance(seq, int) or not isinstance(last_seq, int) or seq <= last_seq:
+        return 1
+    return min(seq - last_seq, MAX_STEPS_BETWEEN_READINGS)
 
 
 class CommandTracker:

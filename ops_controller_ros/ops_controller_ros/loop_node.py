@@ -43,7 +43,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
 from . import controller_params, loop_status
-from .command_tracker import CommandTracker
+from .command_tracker import CommandTracker, steps_between
 
 LOOP_PARAMS = [
     ParamSpec(
@@ -59,9 +59,6 @@ LOOP_PARAMS = [
     controller_params.LOG_PERIOD,
     *loop_status.PARAMS,
 ]
-#: A gap longer than this (a stalled loop, a simulator that ran on for seconds) counts as this
-#: many steps: the controller's drift prediction over it means nothing anyway.
-MAX_STEPS_BETWEEN_READINGS = 100
 #: The parameters a running loop applies at once; the others are fixed after start.
 LIVE_PARAMS = ("rate_hz", "timeout_s")
 
@@ -90,6 +87,7 @@ class ControllerLoopNode(Node):
         self._next_allowed = 0.0
         self._last_reading_at = float("-inf")
         self._last_power_seq = None  # DDS sequence number of the last ops/power reading used
+        self.late_steps = 0  # simulator steps that ran on old set-points (the command was late)
 
         # Delays first: when several are ready the executor takes them in creation order. The
         # latched subscription gives the set-points at start (a lockstep simulator publishes
@@ -177,17 +175,6 @@ class ControllerLoopNode(Node):
         if self.ctrl is None or self.ctrl.stage != self._delays.size:
             self._start_if_found()
 
-    def _steps_since_last_reading(self, info) -> int:
-        """Simulator steps between the last reading used and this one, from the DDS publication
-        sequence numbers of ``ops/power`` (the simulator publishes one per step): a free-running
-        simulator that stepped before our command came published readings we did not use. 1
-        when the middleware gives no number or the numbers restarted (a new simulator)."""
-        seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
-        last, self._last_power_seq = self._last_power_seq, seq
-        if not isinstance(seq, int) or last is None or seq <= last:
-            return 1
-        return min(seq - last, MAX_STEPS_BETWEEN_READINGS)
-
     def _on_power(self, msg: Float32, info=None):
         power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
         if power is None or self.ctrl is None or not self._commands.matched:
@@ -196,7 +183,12 @@ class ControllerLoopNode(Node):
         energies = pulse_energies_from_trace(trace, samples)
         if energies.size != 2**self.ctrl.stage - 1:
             return  # a trace of another stage (the simulator is restarting)
-        self.ctrl.observe(power, energies, steps=self._steps_since_last_reading(info))
+        # Steps of a free-running simulator that ran before our command came (docs/interfaces.md)
+        seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
+        steps = steps_between(self._last_power_seq, seq)
+        self._last_power_seq = seq
+        self.late_steps += steps - 1
+        self.ctrl.observe(power, energies, steps=steps)
         self._commands.answered()
         self.readings += 1
         now = time.monotonic()
@@ -239,4 +231,5 @@ class ControllerLoopNode(Node):
                 f"{self.progress()}: no reading for {silent_s:.1f} s (waiting for the simulator)"
             )
             return
-        self.get_logger().info(f"{self.progress()}: P_N/P_max = {self.ctrl.last_power:.4f}")
+        late = f" ({self.late_steps} simulator steps before a command came)" * bool(self.late_steps)
+        self.get_logger().info(f"{self.progress()}: P_N/P_max = {self.ctrl.last_power:.4f}{late}")

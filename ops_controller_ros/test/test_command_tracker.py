@@ -2,7 +2,11 @@
 step equal the pending command."""
 
 import numpy as np
-from ops_controller_ros.command_tracker import CommandTracker
+from ops_controller_ros.command_tracker import (
+    MAX_STEPS_BETWEEN_READINGS,
+    CommandTracker,
+    steps_between,
+)
 
 
 def test_readings_count_only_after_the_commanded_setpoints_arrive():
@@ -65,3 +69,12 @@ def test_a_resent_command_gives_no_round_trip_sample():
     assert t.resends == 1
     t.on_setpoints([1.0], now=1.001)
     assert t.rtt_s is None  # ambiguous: it may answer the first copy
+
+
+def test_steps_between_readings_from_the_publication_sequence_numbers():
+    assert steps_between(41, 42) == 1  # the next step's reading
+    assert steps_between(41, 44) == 3  # two steps ran before the command came
+    assert steps_between(None, 7) == 1  # the first reading
+    assert steps_between(41, None) == 1  # a middleware without numbers
+    assert steps_between(900, 3) == 1  # a restarted simulator numbers from 1 again
+    assert steps_between(0, 10**6) == MAX_STEPS_BETWEEN_READINGS  # a stall: capped
