@@ -198,6 +198,7 @@ class PhaseTracker:
         u = np.asarray(setpoints_fs, dtype=np.float64).reshape(self.stage) / self.period_fs
         self._base = u.copy()  # set-points (cycles) around which the excursions are made
         self._last_command = u.copy()
+        self._awaiting = False  # a command was given and its reading has not come yet
         noisy = self.params.detector_noise >= self.params.noisy_threshold
         self._window_len = self._fit_window(noisy)
         self._history: deque = deque(maxlen=self._window_len)
@@ -245,7 +246,12 @@ class PhaseTracker:
         return self._base * self.period_fs
 
     def command(self) -> np.ndarray:
-        """Set-points (fs) to apply now."""
+        """Set-points (fs) to apply now. Asked again before the reading (a node re-sending a
+        command whose reading did not come), the same set-points: a second call must not draw
+        new excursions or undo a whole-cycle move that the first one made (seen over DDS: the
+        re-sent command lost its move while the tracker fitted the period on it)."""
+        if self._awaiting:
+            return self._last_command * self.period_fs
         p = self.params
         if self.estimate is not None:
             # aim at the stacking point of the next step, by the smallest move modulo a period
@@ -259,11 +265,11 @@ class PhaseTracker:
                 signs = self._rng.choice((-1.0, 1.0), size=self.stage)
                 u = self._base + p.acquire_dither_cycles * signs
         else:
-            if self._hop is None:  # (a command repeated before its reading keeps its move)
-                self._hop = self._plan_hop()
+            self._hop = self._plan_hop()
             u = self._base + self._hold_dither() * self._excursion(self._tick)
         u = np.clip(u, -self.range_cycles, self.range_cycles)
         self._last_command = u
+        self._awaiting = True
         return u * self.period_fs
 
     def _plan_hop(self):
@@ -300,6 +306,7 @@ class PhaseTracker:
         steps = int(steps)
         if steps < 1:
             raise ValueError(f"steps since the previous reading must be >= 1 (got {steps})")
+        self._awaiting = False
         self.last_power = float(power)
         self._tick += 1
         self._step += steps

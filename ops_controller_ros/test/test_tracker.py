@@ -89,6 +89,21 @@ def test_a_noisy_detector_found_from_the_readings_lengthens_the_fit_window():
     assert shorter.window_length == 12  # the longer of the two
 
 
+def test_a_command_asked_again_before_its_reading_is_the_same():
+    """A node re-sends a command whose reading is overdue: the second call must not draw a new
+    excursion or undo a whole-cycle move the first one made."""
+    cfg = make_config(stage=5, mode="hard", split="test")
+    sim = BatchedSimulation(cfg, num_envs=1, seed=4)
+    r = sim.reset(seed=4)
+    tracker = PhaseTracker(cfg, setpoints_fs=r.setpoints_fs[0], seed=4)
+    for _ in range(150):
+        first = tracker.command()
+        np.testing.assert_array_equal(tracker.command(), first)
+        r = sim.step_setpoints(first[None, :])
+        tracker.observe(r.power[0], r.pulse_energies[0])
+    assert tracker.hops >= 3 and r.power[0] > 0.95  # moves were made, and the lock held
+
+
 def late_run(seed, tell: bool, steps=1200, late=0.2):
     """Extreme mode with commands that come late: before a fifth of the readings (at random) the
     simulator steps once more on the old set-points, as a free-running one does when the answer
