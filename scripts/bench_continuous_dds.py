@@ -7,7 +7,7 @@ worst reading, readings to the first lock.
 
 Usage (after `source setup.bash`):
   python scripts/bench_continuous_dds.py --controller tracker --mode hard --seconds 600 \
-      --seeds 1000 [--model models/n5_hard] [--nice -5] [--out x.json]
+      --seeds 1000 [--model models/n5_hard] [--nice -5] [--param hop_every:=0] [--out x.json]
 """
 
 from __future__ import annotations
@@ -37,6 +37,8 @@ def run_once(args, seed: int, logdir: Path) -> list[float]:
     else:
         ctl_cmd = ["ros2", "run", "ops_controller_ros", args.controller, "--ros-args"]
         ctl_cmd += ["-p", f"seed:={seed}"]
+    for assignment in args.param:  # the controller node's own parameters, NAME:=VALUE
+        ctl_cmd += ["-p", assignment]
     tag = f"{args.controller}_{args.mode}_{seed}"
     if args.nice:  # the loop's priority on a busy machine (a rig's controller would have it)
         prio = ["nice", "-n", str(args.nice)]
@@ -75,6 +77,9 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=600.0, help="time per run")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1000])
     ap.add_argument("--out", help="also write the figures to this JSON file")
+    ap.add_argument(
+        "--param", nargs="*", default=[], help="controller node parameters, NAME:=VALUE each"
+    )
     ap.add_argument(
         "--nice",
         type=int,

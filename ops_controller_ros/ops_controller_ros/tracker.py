@@ -102,6 +102,13 @@ class TrackerParams:
     # to a wrong estimate, or to readings that did not belong together (a starved machine), must
     # not keep the tracker from ever locking again (seen: gain 0.56 on a true 1.0).
     calibration_reset_after: int = 500
+    # A "lock" whose readings stay below false_lock_power for false_lock_readings in a row is no
+    # lock: the estimate is dropped, the detector calibration goes back to nominal and the
+    # tracker acquires again (0: never). Seen over DDS in extreme mode: a wrong estimate that the
+    # detector gain's fit followed to its bound (gain 20 on a true 1.0), "locked" at P_N 0.02 for
+    # 20,000 readings.
+    false_lock_power: float = 0.5
+    false_lock_readings: int = 50
     # Wavelength from known whole-cycle moves: every hop_every tracking readings one stage's
     # set-point moves by hop_cycles periods of the model (the landscape repeats, so the lock
     # stays where the model is right); a model period off by a fraction r moves that stage's
@@ -141,6 +148,8 @@ class TrackerParams:
             ("hop_gain", 0 < self.hop_gain <= 1, "in (0, 1]"),
             ("calibration_memory", self.calibration_memory >= 1, ">= 1"),
             ("calibration_reset_after", self.calibration_reset_after >= 1, ">= 1"),
+            ("false_lock_power", 0.0 <= self.false_lock_power < 1.0, "in [0, 1)"),
+            ("false_lock_readings", self.false_lock_readings >= 0, ">= 0"),
         )
         for name, ok, allowed in checks:
             if not ok:
@@ -216,6 +225,8 @@ class PhaseTracker:
         self._step = 0  # simulator (or rig) steps up to the latest reading
         self._gap = 1  # steps between the last two readings
         self._unlocked_readings = 0  # readings since the tracker last held a lock
+        self._low_readings = 0  # readings in a row below false_lock_power while "locked"
+        self.false_locks = 0  # locks dropped for that
         self.calibration_resets = 0
         self.knots = 0  # knot hypotheses taken while tracking
         self.hops = 0  # whole-cycle moves made to measure the wavelength
@@ -332,11 +343,28 @@ class PhaseTracker:
             self._track(hop)
         elif len(self._history) == self._window_len or self._search is not None:
             self._search_step()
+        self._check_false_lock(float(power))
         self._unlocked_readings = 0 if self.locked else self._unlocked_readings + 1
         if self._unlocked_readings >= self.params.calibration_reset_after:
             self._unlocked_readings = 0
             if self.calibration.reset_detector():
                 self.calibration_resets += 1
+
+    def _check_false_lock(self, power: float) -> None:
+        """Drop a lock whose readings stay low (see ``false_lock_power``): whatever the model and
+        its calibration say, a stacker at its optimum reads high."""
+        p = self.params
+        low = self.locked and self._recovering is None and power < p.false_lock_power
+        self._low_readings = self._low_readings + 1 if low else 0
+        if not p.false_lock_readings or self._low_readings < p.false_lock_readings:
+            return
+        self._low_readings = 0
+        self.false_locks += 1
+        self.estimate = None
+        self._search = None
+        self._bad_fits = 0
+        self.calibration.reset_detector()
+        self._history = deque(list(self._history)[-self._window_len :], maxlen=self._window_len)
 
     # ------------------------------------------------------------------ estimation
     def _window(self, readings=None, raw: bool = False):

@@ -104,6 +104,39 @@ def test_a_command_asked_again_before_its_reading_is_the_same():
     assert tracker.hops >= 3 and r.power[0] > 0.95  # moves were made, and the lock held
 
 
+class NeverFailingFit(PhaseTracker):
+    """A tracker whose fits always succeed and keep the estimate (what the detector gain's fit
+    running to its bound amounted to over DDS: "locked" at P_N 0.02 for 20,000 readings)."""
+
+    def _track(self, hop=None):
+        pass
+
+
+def test_a_lock_whose_readings_stay_low_is_dropped_and_acquired_again():
+    cfg = make_config(stage=5, mode="medium", split="test")
+    sim = BatchedSimulation(cfg, num_envs=1, seed=6)
+    r = sim.reset(seed=6)
+    tracker = NeverFailingFit(cfg, setpoints_fs=r.setpoints_fs[0], seed=6)
+    tracker._start_tracking(np.full(5, 0.37))  # a wrong estimate: far from the stacking point
+    tracker.calibration.gain = 20.0  # and a detector calibration run to its bound
+    powers = []
+    for _ in range(120):
+        r = sim.step_setpoints(tracker.command()[None, :])
+        tracker.observe(r.power[0], r.pulse_energies[0])
+        powers.append(r.power[0])
+        if tracker.false_locks:
+            break
+    limit = TrackerParams().false_lock_readings
+    assert tracker.false_locks == 1 and len(powers) == limit  # dropped after the limit, no later
+    assert max(powers) < TrackerParams().false_lock_power
+    assert not tracker.locked and tracker.calibration.gain == 1.0  # acquiring, nominal detector
+    tracker.__class__ = PhaseTracker  # the same tracker, with its real fits from here on
+    for _ in range(40):
+        r = sim.step_setpoints(tracker.command()[None, :])
+        tracker.observe(r.power[0], r.pulse_energies[0])
+    assert tracker.locked and r.power[0] > 0.95 and tracker.acquisitions == 1
+
+
 def late_run(seed, tell: bool, steps=1200, late=0.2):
     """Extreme mode with commands that come late: before a fifth of the readings (at random) the
     simulator steps once more on the old set-points, as a free-running one does when the answer
