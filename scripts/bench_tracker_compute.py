@@ -6,10 +6,12 @@ every reading after the first lock (median, p99, max, share over 10 ms), with BL
 (what every node and CLI sets, ops_sim_ros.threads) and on the library's default (one per core),
 plus the time of one knot test (the 2N hypotheses of :meth:`PhaseTracker._knot_fit`) and one
 tracking fit on a locked state. Timings depend on the load: the 1-minute load average is printed
-and written beside them.
+and written beside them; ``--busy N`` runs N busy-looping processes beside the measurement (a
+machine whose cores are all taken, where a second BLAS thread waits for one).
 
 Usage (after `source setup.bash`):
-  python scripts/bench_tracker_compute.py [--mode extreme] [--steps 3000] [--seeds 1000] [--write]
+  python scripts/bench_tracker_compute.py [--mode extreme] [--steps 3000] [--seeds 1000]
+      [--busy 2] [--write]
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -57,9 +60,23 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1000])
     ap.add_argument("--repeats", type=int, default=30, help="calls per fit timing")
+    ap.add_argument("--busy", type=int, default=0, help="busy processes beside the measurement")
     ap.add_argument("--write", action="store_true", help="write docs/benchmarks.md")
     args = ap.parse_args()
     cores = os.cpu_count() or 1
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
+    try:
+        rows = measure(args, cores)
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()
+    write(args, cores, rows)
+    return 0
+
+
+def measure(args, cores: int) -> list[str]:
+    """One table row per BLAS thread count and seed."""
     rows = []
     for threads in (1, cores):
         for seed in args.seeds:
@@ -76,15 +93,22 @@ def main() -> int:
             )
             rows.append(row)
             print(row, flush=True)
+    return rows
+
+
+def write(args, cores: int, rows: list[str]) -> None:
+    """Print the section (and write it into docs/benchmarks.md with ``--write``)."""
     cmd = "python scripts/bench_tracker_compute.py " + " ".join(sys.argv[1:])
+    title = SECTION + (f", {args.busy} busy processes beside it" if args.busy else "")
     text = "\n".join(
         [
-            SECTION,
+            title,
             "",
             f"Command: `{cmd.strip()}` ({args.mode} mode, N = 5, testing split, {args.steps} "
             f"steps per seed; machine: {platform.processor() or platform.machine()}, "
-            f"{cores} cores). Per reading after the first lock: `command` + `observe` of the "
-            "tracker in process; a node at 100 Hz has 10 ms. Fit timings: median of "
+            f"{cores} cores; {args.busy} busy processes beside it). Per reading after the first "
+            "lock: `command` + `observe` of the tracker in process; a node at 100 Hz has 10 ms. "
+            "Fit timings: median of "
             f"{args.repeats} calls on the run's last window (one tracking fit of "
             "`track_iterations`; one knot test: the 2N hypotheses, fitted together).",
             "",
@@ -95,9 +119,9 @@ def main() -> int:
             "",
         ]
     )
+    print(text)
     if args.write:
-        write_section(SECTION, text)
-    return 0
+        write_section(title, text)
 
 
 if __name__ == "__main__":
