@@ -230,7 +230,14 @@ def _add_run_arguments(p) -> None:
     )
 
 
-def _sigterm_to_interrupt(signum, frame):
+_STOP_SIGNALS: list[int] = []  # Ctrl-C / SIGTERM received while training
+
+
+def _stop_to_interrupt(signum, frame):
+    """Ctrl-C and SIGTERM stop a training run the same way. Recorded as well as raised: a
+    KeyboardInterrupt raised while rclpy converts a message in C++ reaches Python as a
+    RuntimeError ("Unable to convert call argument"), which is still a requested stop."""
+    _STOP_SIGNALS.append(signum)
     raise KeyboardInterrupt
 
 
@@ -678,7 +685,9 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     )
     save_metadata(out / "checkpoints", {**meta, "checkpoint": True})
 
-    previous_handler = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+    _STOP_SIGNALS.clear()
+    previous_handler = signal.signal(signal.SIGTERM, _stop_to_interrupt)
+    signal.signal(signal.SIGINT, _stop_to_interrupt)
     interrupted, error = False, None
     t0 = t0_ref[0] = time.monotonic()
     print(
@@ -701,7 +710,10 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     except KeyboardInterrupt:
         interrupted = True
     except Exception as exc:  # e.g. the simulator died: keep what was learned, then report
-        error = exc
+        if _STOP_SIGNALS:  # the stop, surfacing through a C++ call (see _stop_to_interrupt)
+            interrupted = True
+        else:
+            error = exc
     finally:
         # A second Ctrl-C must not corrupt the model being written.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
