@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import array
 import math
+import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -212,6 +213,10 @@ def check_command(values: Sequence[float], stage: int) -> str | None:
     return None
 
 
+def _stop_requested(signum, frame) -> None:
+    """Ctrl-C / SIGTERM: nothing to do here; rclpy's handler has shut the context down."""
+
+
 def run_node(make_node: Callable[[], Node], args=None) -> int:
     """The ``main()`` of every node: init, spin, clean exit on Ctrl-C / SIGTERM.
 
@@ -221,6 +226,12 @@ def run_node(make_node: Callable[[], Node], args=None) -> int:
     (:func:`~ops_sim_ros.threads.limit_blas_threads`) unless the environment says otherwise.
     """
     limit_blas_threads()
+    # rclpy's own handlers (installed by init, for SIGINT and SIGTERM) shut the context down, and
+    # spin returns; they then call the Python handler found here. Python's default raises
+    # KeyboardInterrupt wherever the main thread is, even inside rclpy's Task constructor, which
+    # then printed "Exception ignored in Future.__del__ ... AttributeError" on exit (seen in CI).
+    for stop in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(stop, _stop_requested)
     rclpy.init(args=args)
     node = None
     code = 0
