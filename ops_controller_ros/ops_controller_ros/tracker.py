@@ -77,18 +77,28 @@ class TrackerParams:
     iterations: int = 12  # LM iterations of a global refinement
     track_iterations: int = 3  # LM iterations per reading while tracking
     walk_cycles: float | None = None  # random walk per step allowed (None: 6x the model's jitter)
-    drift_prior_cycles: float = 0.002  # how far one window may move the drift estimate (std)
+    drift_prior_cycles: float = 0.004  # how far one window may move the drift estimate (std)
     residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit (to lock)
+    # The least std of a reading about the model that the path fits assume (normalized
+    # energies), added to what the fits' own residuals show (the model's accuracy on a clean
+    # detector is ~1e-5): the readings' weight against the random walk and the drift prior.
+    fit_noise_floor: float = 3e-4
     lost_tolerance: float = 1e-5  # mean squared residual of a tracking fit that counts as lost
     detector_noise: float = 0.0  # assumed std of the detector noise (normalized energies)
     misses: int = 3  # bad fits in a row before recovering
     # Knots of the drift (a stage's slope changes): a tracking fit whose residual exceeds
-    # knot_tolerance (or whose path jumps, knot_walk_sigmas) is tried again with one stage's
-    # drift prior widened to knot_prior_cycles (each stage in turn; 0: never); a hypothesis is
-    # taken if its whole cost plus knot_penalty is the lowest.
+    # knot_tolerance (or whose path jumps, knot_walk_sigmas) is tried again under one hypothesis
+    # per stage, knot position (the window's last knot_readings steps) and side: from the knot
+    # on, that stage's drift changes by a variable with prior std knot_prior_cycles (0: never
+    # try); a hypothesis is taken if its whole cost plus knot_penalty is the lowest. The prior
+    # keeps the hypotheses off the mirror images of a change (a path that reads the same with
+    # the change's sign turned, at twice its size: 0.03 let them win, 92.7 -> 96.5 % locked
+    # with 0.015, scripts/tracker_knots.py).
     knot_tolerance: float = 1e-6
-    knot_prior_cycles: float = 0.03
+    knot_prior_cycles: float = 0.015
     knot_start_cycles: float = 0.02  # the knot fits start this far off the prediction
+    knot_readings: int = 3  # a knot is looked for in the window's last this many steps
+    knot_iterations: int = 6  # LM iterations of the knot hypotheses (30 starts at N = 5)
     knot_walk_sigmas: float = 2.0  # a path step this far off the drift (walk stds) tries knots
     knot_penalty: float = 4.0  # a knot hypothesis wins if its cost + this is the lowest
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
@@ -140,6 +150,8 @@ class TrackerParams:
             ("misses", self.misses >= 1, ">= 1"),
             ("knot_tolerance", self.knot_tolerance > 0, "> 0"),
             ("knot_prior_cycles", self.knot_prior_cycles >= 0, ">= 0"),
+            ("knot_readings", self.knot_readings >= 1, ">= 1"),
+            ("fit_noise_floor", self.fit_noise_floor > 0, "> 0"),
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
             ("step_budget_ms", self.step_budget_ms >= 0, ">= 0"),
             ("calibration_every", self.calibration_every >= 1, ">= 1"),
@@ -159,6 +171,8 @@ class TrackerParams:
         return asdict(self)
 
 
+FIT_VAR_FITS = 25  # tracking fits whose residuals give the readings' std (their median)
+FIT_VAR_MIN = 5  # ... once this many are in
 SEARCH_CHUNK = 128  # candidates scored per unit of the global search
 MAX_HOP_RATIO = 0.05  # largest period error one fit may report (relative)
 HOP_RATIO_PRIOR = 0.05  # prior std of the period error fitted over a window with a move
@@ -221,6 +235,7 @@ class PhaseTracker:
         self._recovering = None  # readings since a fit failed, while re-locking locally
         self._bad_fits = 0
         self._noise_var = None  # detector noise variance measured from a repeated reading
+        self._fit_vars: deque = deque(maxlen=FIT_VAR_FITS)  # residuals of tracking fits
         self._tick = 0  # readings taken
         self._step = 0  # simulator (or rig) steps up to the latest reading
         self._gap = 1  # steps between the last two readings
@@ -523,6 +538,22 @@ class PhaseTracker:
         self.estimate = _wrap(x)
         self.drift = np.zeros(self.stage)
 
+    def _reading_sd(self) -> float:
+        """The std of a reading about the model that the path fits assume: ``fit_noise_floor``
+        plus the median mean squared residual of the last ``FIT_VAR_FITS`` tracking fits (the
+        detector's noise and the model's own misfit, as the fits find them), and before those
+        the noise assumed or measured from the repeated first reading. Weighting the readings
+        by the lock tolerance instead (1e-6, and the repeated reading's difference, which in
+        extreme mode is the drift's: ~1e-6) let the random walk absorb a knot of the drift for
+        three or four readings (extreme, `scripts/tracker_knots.py`: 92.7 % locked against
+        96.5 % with the fits' own residuals; docs/tracker.md)."""
+        p = self.params
+        if len(self._fit_vars) >= FIT_VAR_MIN:
+            var = float(np.median(self._fit_vars))
+        else:
+            var = p.residual_tolerance + max(p.detector_noise**2, self._noise_var or 0.0)
+        return (p.fit_noise_floor**2 + max(var, p.detector_noise**2)) ** 0.5
+
     def _walk_sigma(self) -> float:
         w = self.params.walk_cycles
         return max(6.0 * self.model.jitter_sigma_cycles, 1e-4) if w is None else w
@@ -545,25 +576,33 @@ class PhaseTracker:
         self._path, self._objective, self._ratio = fit.path[0], fit.objective[0], fit.ratio[0]
         return fit.x[0], fit.drift[0], float(fit.data_cost[0])
 
-    def _fit_paths(self, x_now, drift, u, y, age, iterations: int, drift_prior=None, ratio=False):
+    def _fit_paths(
+        self, x_now, drift, u, y, age, iterations: int, drift_prior=None, ratio=False, knots=None
+    ):
         """:meth:`_fit_path` for M starts at once (x_now, drift: (M, N); drift_prior: (M, N)
         or None), each its own Levenberg-Marquardt: the hypotheses of a knot or a recovery cost
         one batched evaluation of the physics per iteration instead of one each (the tracker's
-        slowest readings, measured in docs/tracker.md). Returns a :class:`PathFits`."""
+        slowest readings, measured in docs/tracker.md). Returns a :class:`PathFits`.
+
+        ``knots``: (stage (M,), first (M,), change (M,)) a knot hypothesis per start: from
+        reading ``first`` of the window on, that stage drifts by mu + delta, delta one more
+        variable (start ``change``, prior std ``knot_prior_cycles``); the path before the knot
+        keeps the drift mu and its prior. The returned drift is the one after the knot."""
         p = self.params
         k, n = u.shape
         m = x_now.shape[0]
         u_centred = u - u.mean(axis=0)
-        r_sd = (p.residual_tolerance + max(p.detector_noise**2, self._noise_var or 0.0)) ** 0.5
+        r_sd = self._reading_sd()
         w_sd = self._walk_sigma()
         if drift_prior is None:
             drift_prior = np.full((m, n), p.drift_prior_cycles)
         path = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
         extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
-        z = np.concatenate([path.reshape(m, k * n), drift, extra], axis=1)
+        change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
+        z = np.concatenate([path.reshape(m, k * n), drift, extra, change], axis=1)
         mu0 = drift.copy()
         d = z.shape[1]
-        nz = k * n + n  # the path and the drift (r, if fitted, is the last variable)
+        nz = k * n + n  # the path and the drift (then r, if fitted, then the knot's change)
         # The normal equations by their parts (no full Jacobian is formed): the readings (block
         # diagonal in the path, plus r), the walk between readings (linear, the same for every
         # start) and the drift prior (diagonal, per start).
@@ -574,11 +613,20 @@ class PhaseTracker:
             walk[rows, i * n : (i + 1) * n] = np.eye(n) / gap**0.5
             walk[rows, (i - 1) * n : i * n] = -np.eye(n) / gap**0.5
             walk[rows, k * n : nz] = -np.eye(n) * gap**0.5
-        walk_normal = walk.T @ walk / w_sd**2
+        walk = np.broadcast_to(walk, (m, *walk.shape))
         prior_w = np.zeros((m, d))  # the prior's weights (1 / std^2) on the drift and r
         prior_w[:, k * n : nz] = 1.0 / drift_prior**2
         if ratio:
             prior_w[:, nz] = 1.0 / HOP_RATIO_PRIOR**2
+        if knots is not None:  # the walk steps after each start's knot: minus gap * delta
+            walk = walk.copy()
+            for i in range(1, k):
+                gap = max(age[i - 1] - age[i], 1.0)
+                after = np.flatnonzero(i >= np.asarray(knots[1]))
+                rows = (i - 1) * n + np.asarray(knots[0])[after]
+                walk[after, rows, d - 1] = -(gap**0.5)
+            prior_w[:, d - 1] = 1.0 / p.knot_prior_cycles**2
+        walk_normal = walk.transpose(0, 2, 1) @ walk / w_sd**2
         prior_mean = np.zeros((m, d))
         prior_mean[:, k * n : nz] = mu0
         h = 1e-4
@@ -603,7 +651,7 @@ class PhaseTracker:
 
         def objective(z, err):
             dz = z - prior_mean
-            walk_res = z @ walk.T
+            walk_res = np.einsum("mrd,md->mr", walk, z)
             return (
                 np.einsum("mkr,mkr->m", err, err) / r_sd**2
                 + np.einsum("mr,mr->m", walk_res, walk_res) / w_sd**2
@@ -612,8 +660,8 @@ class PhaseTracker:
 
         def normal_equations(z, err, jac_k):
             """J^T J (M, D, D) and J^T r (M, D) of the whole cost at z."""
-            jtj = np.broadcast_to(walk_normal, (m, d, d)).copy()
-            jtr = z @ walk_normal
+            jtj = walk_normal.copy()
+            jtr = np.einsum("mde,me->md", walk_normal, z)
             data_jtj = np.einsum("mkri,mkrj->mkij", jac_k, jac_k) / r_sd**2  # (M, K, N, N)
             jtj[:, blocks[:, :, None], blocks[:, None, :]] += data_jtj
             jtr[:, blocks] += np.einsum("mkri,mkr->mki", jac_k, err) / r_sd**2
@@ -651,9 +699,12 @@ class PhaseTracker:
                 err[better], jac_k[better] = readings(z[better], True)
         fitted_ratio = z[:, nz] if ratio else np.zeros(m)
         x = z[:, (k - 1) * n : k * n] + fitted_ratio[:, None] * u_centred[-1]
+        fitted_drift = z[:, k * n : nz].copy()
+        if knots is not None:
+            fitted_drift[np.arange(m), np.asarray(knots[0])] += z[:, d - 1]
         return PathFits(
             x=x,
-            drift=z[:, k * n : nz],
+            drift=fitted_drift,
             data_cost=data_cost,
             path=z[:, : k * n].reshape(m, k, n),  # the fitted errors at every reading
             objective=cost,  # each fit's whole normalized cost (readings, walk, prior)
@@ -700,6 +751,7 @@ class PhaseTracker:
                 self._recovering = []
             return
         self._bad_fits = 0
+        self._fit_vars.append(cost)
         self.drift = drift
         # Not wrapped to one period: the estimate follows the delays continuously, so set-point
         # plus estimate stays the physical delay error (near 0 at the lock) and the model's pulse
@@ -716,24 +768,29 @@ class PhaseTracker:
             self._correct_period(fitted_ratio)
 
     def _knot_fit(self, predicted, x, drift, cost, u, y, age):
-        """The best of the present fit (x, drift, cost) and one fit per stage and side with that
-        stage's drift prior widened to ``knot_prior_cycles`` (all fitted at once); taken in turn,
-        a hypothesis wins only if its whole cost plus ``knot_penalty`` is below the best so far
-        (the path of the winner is kept)."""
+        """The best of the present fit (x, drift, cost) and the knot hypotheses, all fitted at
+        once: each stage's slope changed from each of the last ``knot_readings`` readings of the
+        window on, started either way (one reading is even in the change); the steps before the
+        knot keep the present drift. Taken in turn, a hypothesis wins only if its whole cost plus
+        ``knot_penalty`` is below the best so far (the path of the winner is kept)."""
         p = self.params
-        n = self.stage
-        stages = np.repeat(np.arange(n), 2)  # each stage, then each side of its new slope
-        signs = np.tile([1.0, -1.0], n)  # (both starts: one reading is even in the knot)
-        shift = np.zeros((2 * n, n))
-        shift[np.arange(2 * n), stages] = signs * p.knot_start_cycles
-        prior = np.full((2 * n, n), p.drift_prior_cycles)
-        prior[np.arange(2 * n), stages] = p.knot_prior_cycles
-        x0 = predicted[None] + shift
-        d0 = self.drift[None] + shift
-        fits = self._fit_paths(x0, d0, u, y, age, p.iterations, drift_prior=prior)
+        n, k = self.stage, len(u)
+        firsts = np.arange(k - 1, max(k - 1 - p.knot_readings, 0), -1)
+        stage, first, sign = (
+            a.ravel() for a in np.meshgrid(np.arange(n), firsts, [1.0, -1.0], indexing="ij")
+        )
+        change = sign * p.knot_start_cycles
+        m = stage.size
+        # start: the prediction's path, the knotted stage moved by the change after its knot
+        steps_after = np.maximum(age[first - 1][:, None] - age[None, :], 0.0)  # (M, K)
+        x0 = np.tile(predicted, (m, 1))
+        x0[np.arange(m), stage] += change * steps_after[:, -1]
+        drift0 = np.tile(self.drift, (m, 1))
+        knots = (stage, first, change)
+        fits = self._fit_paths(x0, drift0, u, y, age, p.knot_iterations, knots=knots)
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
         won = False
-        for i in range(2 * n):
+        for i in range(m):
             if fits.objective[i] + p.knot_penalty < best_obj:
                 best = (fits.x[i], fits.drift[i], float(fits.data_cost[i]))
                 best_path, best_obj, won = fits.path[i], fits.objective[i], True

@@ -162,11 +162,11 @@ def late_run(seed, tell: bool, steps=1200, late=0.2):
 
 
 def test_steps_between_readings_keep_the_lock_when_commands_come_late():
-    """Measured (2 seeds x 2000 readings): 0.83-0.86 of the readings >= 0.95 when told the
-    steps, 0.55-0.63 when every reading is taken for the next step (the drift of the step it
-    missed is then an error of the model)."""
-    told = np.mean([late_run(seed, tell=True) for seed in (11, 12)])
-    blind = np.mean([late_run(seed, tell=False) for seed in (11, 12)])
+    """Measured (seeds 11, 12 x 1200 readings, 30 % of the commands late by a step or more):
+    0.83-0.84 of the readings >= 0.95 when told the steps, 0.64-0.66 when every reading is taken
+    for the next step (the drift of the step it missed is then an error of the model)."""
+    told = np.mean([late_run(seed, tell=True, late=0.3) for seed in (11, 12)])
+    blind = np.mean([late_run(seed, tell=False, late=0.3) for seed in (11, 12)])
     assert told > 0.7, (told, blind)
     assert told > blind + 0.1, (told, blind)
     with pytest.raises(ValueError, match="steps since the previous reading must be >= 1"):
@@ -182,3 +182,40 @@ def test_registry_builds_it_and_bad_parameters_are_named():
         make_controller("pid", cfg)
     with pytest.raises(ValueError, match="pulse energies"):
         PhaseTracker(cfg).observe(0.5)
+
+
+def test_the_fits_weigh_the_readings_by_their_own_residuals():
+    """A clean detector: the readings' std the path fits assume falls to about the floor (the
+    lock tolerance and the drift-read noise would say ~1e-3 in extreme mode); a detector with
+    noise 0.01 it is not told of: about that noise."""
+    floor = TrackerParams().fit_noise_floor
+    _, clean, _ = run("extreme", 4, steps=150)
+    _, noisy, _ = run("medium", 4, steps=150, env=dict(detector_noise=0.01))
+    assert clean.locked and clean._reading_sd() < 1.5 * floor, clean._reading_sd()
+    assert noisy.locked and 0.005 < noisy._reading_sd() < 0.02, noisy._reading_sd()
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_a_knot_of_one_stage_is_found_on_that_stage_within_a_few_readings(seed):
+    """Locked in hard mode (one drift shared by all stages), stage 2's slope turns by 0.015
+    cycles per step: no reading falls below 0.8 (a lock loss), and after a few readings the
+    tracker's drift of
+    that stage is the new one while the others keep theirs (a knot hypothesis per stage and
+    position in the window)."""
+    powers, tracker, sim = run("hard", seed, steps=100)
+    assert powers[-20:].min() > 0.95
+    period = sim.optical_period_fs
+    old = sim.noise.slope[0].copy() / period
+    sim.noise.slope[0, 2] += 0.015 * period
+    sim.noise._update_bound_safe()
+    after = []
+    for _ in range(8):
+        r = sim.step_setpoints(tracker.command()[None, :])
+        tracker.observe(r.power[0], r.pulse_energies[0])
+        after.append(r.power[0])
+    new = sim.noise.slope[0] / period
+    assert min(after) > 0.8 and min(after[-4:]) > 0.95, after
+    assert abs(tracker.drift[2] - new[2]) < 0.003, (tracker.drift, new)
+    others = [0, 1, 3, 4]
+    assert np.abs(tracker.drift[others] - old[others]).max() < 0.003, (tracker.drift, old)
+    assert tracker.knots >= 1
