@@ -78,6 +78,7 @@ class TrackerParams:
     track_iterations: int = 3  # LM iterations per reading while tracking
     walk_cycles: float | None = None  # random walk per step allowed (None: 6x the model's jitter)
     drift_prior_cycles: float = 0.004  # how far one window may move the drift estimate (std)
+    noisy_drift_prior_cycles: float = 0.002  # ... on a noisy detector (docs/tracker.md)
     residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit (to lock)
     # The least std of a reading about the model that the path fits assume (normalized
     # energies), added to what the fits' own residuals show (the model's accuracy on a clean
@@ -101,6 +102,9 @@ class TrackerParams:
     knot_iterations: int = 6  # LM iterations of the knot hypotheses (30 starts at N = 5)
     knot_walk_sigmas: float = 2.0  # a path step this far off the drift (walk stds) tries knots
     knot_penalty: float = 4.0  # a knot hypothesis wins if its cost + this is the lowest
+    # ... on a noisy detector (noise std >= noisy_threshold) the knot test fires on the noise
+    # far more often, and a hypothesis must win by this much (measured in docs/tracker.md)
+    noisy_knot_penalty: float = 8.0
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
     acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
     step_budget_ms: float = 0.0  # global search per reading (0: all in the reading that starts it)
@@ -145,6 +149,7 @@ class TrackerParams:
             ("track_iterations", self.track_iterations >= 1, ">= 1"),
             ("walk_cycles", self.walk_cycles is None or self.walk_cycles > 0, "> 0 or None"),
             ("drift_prior_cycles", self.drift_prior_cycles > 0, "> 0"),
+            ("noisy_drift_prior_cycles", self.noisy_drift_prior_cycles > 0, "> 0"),
             ("residual_tolerance", self.residual_tolerance > 0, "> 0"),
             ("detector_noise", self.detector_noise >= 0, ">= 0"),
             ("misses", self.misses >= 1, ">= 1"),
@@ -152,6 +157,7 @@ class TrackerParams:
             ("knot_prior_cycles", self.knot_prior_cycles >= 0, ">= 0"),
             ("knot_readings", self.knot_readings >= 1, ">= 1"),
             ("fit_noise_floor", self.fit_noise_floor > 0, "> 0"),
+            ("noisy_knot_penalty", self.noisy_knot_penalty >= 0, ">= 0"),
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
             ("step_budget_ms", self.step_budget_ms >= 0, ">= 0"),
             ("calibration_every", self.calibration_every >= 1, ">= 1"),
@@ -538,20 +544,31 @@ class PhaseTracker:
         self.estimate = _wrap(x)
         self.drift = np.zeros(self.stage)
 
+    def _noisy(self) -> bool:
+        """A detector noise (assumed or measured) of at least ``noisy_threshold``."""
+        p = self.params
+        return max(p.detector_noise**2, self._noise_var or 0.0) >= p.noisy_threshold**2
+
     def _reading_sd(self) -> float:
         """The std of a reading about the model that the path fits assume: ``fit_noise_floor``
-        plus the median mean squared residual of the last ``FIT_VAR_FITS`` tracking fits (the
-        detector's noise and the model's own misfit, as the fits find them), and before those
-        the noise assumed or measured from the repeated first reading. Weighting the readings
-        by the lock tolerance instead (1e-6, and the repeated reading's difference, which in
-        extreme mode is the drift's: ~1e-6) let the random walk absorb a knot of the drift for
-        three or four readings (extreme, `scripts/tracker_knots.py`: 92.7 % locked against
-        96.5 % with the fits' own residuals; docs/tracker.md)."""
+        plus the largest of the detector noise assumed (``detector_noise``), the noise measured
+        from the repeated first reading where it makes the detector noisy (``noisy_threshold``),
+        and the median mean squared residual of the last ``FIT_VAR_FITS`` tracking fits (the
+        model's misfit as the fits find it; before those, the lock tolerance plus the measured
+        noise). Weighting every reading by the lock tolerance plus the measured noise (~1e-6
+        in extreme mode, where the "noise" of the repeated reading is the drift between the two)
+        let the random walk absorb a knot of the drift for three or four readings (extreme,
+        `scripts/tracker_knots.py`: 92.7 % locked against 96.5 % with the fits' own residuals;
+        docs/tracker.md). On a noisy detector the fits' residuals alone are too small (the path
+        follows part of the noise) and the measured noise is kept."""
         p = self.params
+        measured = self._noise_var or 0.0
         if len(self._fit_vars) >= FIT_VAR_MIN:
             var = float(np.median(self._fit_vars))
         else:
-            var = p.residual_tolerance + max(p.detector_noise**2, self._noise_var or 0.0)
+            var = p.residual_tolerance + measured
+        if self._noisy():
+            var = max(var, measured)
         return (p.fit_noise_floor**2 + max(var, p.detector_noise**2)) ** 0.5
 
     def _walk_sigma(self) -> float:
@@ -595,7 +612,8 @@ class PhaseTracker:
         r_sd = self._reading_sd()
         w_sd = self._walk_sigma()
         if drift_prior is None:
-            drift_prior = np.full((m, n), p.drift_prior_cycles)
+            prior = p.noisy_drift_prior_cycles if self._noisy() else p.drift_prior_cycles
+            drift_prior = np.full((m, n), prior)
         path = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
         extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
         change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
@@ -790,8 +808,9 @@ class PhaseTracker:
         fits = self._fit_paths(x0, drift0, u, y, age, p.knot_iterations, knots=knots)
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
         won = False
+        penalty = p.noisy_knot_penalty if self._noisy() else p.knot_penalty
         for i in range(m):
-            if fits.objective[i] + p.knot_penalty < best_obj:
+            if fits.objective[i] + penalty < best_obj:
                 best = (fits.x[i], fits.drift[i], float(fits.data_cost[i]))
                 best_path, best_obj, won = fits.path[i], fits.objective[i], True
         self._path, self._objective, self._ratio = best_path, best_obj, 0.0
