@@ -24,8 +24,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_closed_loop import REPO
-from bench_tracker import replace_section
 from bench_tracker_dds import lock_time
+from doc_sections import write_section
 
 SECTION = "## SPGD-PID: the user's first run"
 GOAL_S = 10.0
@@ -75,7 +75,7 @@ def main() -> int:
     )
     print(text)
     if args.write:
-        replace_section(Path(args.write), SECTION, text)
+        write_section(SECTION, text, Path(args.write))
     return 0 if ok >= 0.95 * len(seeds) else 1
 
 

@@ -14,10 +14,13 @@ from __future__ import annotations
 
 import argparse
 import pathlib
+import shlex
 import sys
 import time
 
 import numpy as np
+from doc_sections import write_section
+from ops_gym_bridge.cli_args import parse_key_values
 from ops_gym_bridge.rollouts import rollout_controller
 from ops_sim_ros.config import MODES, make_config
 
@@ -45,12 +48,14 @@ MISMATCH_ISSUE20 = {
 SECTION_MISMATCH = "## Tracker: model mismatch on held-out seeds (issue 20)"
 
 
-def rows(mode, detector, seeds, episodes, steps, env=None, first_seed=0):
+def rows(mode, detector, seeds, episodes, steps, env=None, first_seed=0, params=None):
     nominal = make_config(stage=5, mode=mode, split="test", detector=detector)
     sim_config = nominal.replace(**(env or {}))
     power = []
     for seed in range(first_seed, first_seed + seeds):
-        out = rollout_controller("tracker", {}, nominal, sim_config, episodes, steps, seed)
+        out = rollout_controller(
+            "tracker", params or {}, nominal, sim_config, episodes, steps, seed
+        )
         power.append(out["power"])
     return np.concatenate(power)  # (seeds * episodes, steps + 1)
 
@@ -104,8 +109,17 @@ def main() -> int:
         help="only issue 20's mismatch table (its own section), on seeds from --first-seed",
     )
     ap.add_argument("--first-seed", type=int, default=0, help="first evaluation seed")
+    ap.add_argument(
+        "--rows",
+        nargs="+",
+        choices=list(MISMATCH_ISSUE20),
+        metavar="ROW",
+        help="--mismatch: only these rows (default: all)",
+    )
+    ap.add_argument("--param", nargs="*", default=[], help="tracker parameters KEY=VALUE")
     args = ap.parse_args()
-    cmd = "OPENBLAS_NUM_THREADS=1 python scripts/bench_tracker.py " + " ".join(sys.argv[1:])
+    args.params = parse_key_values(args.param, "--param")
+    cmd = "OPENBLAS_NUM_THREADS=1 python scripts/bench_tracker.py " + shlex.join(sys.argv[1:])
     if args.mismatch:
         return mismatch_table(args, cmd)
     n_ep = args.seeds * args.episodes
@@ -123,7 +137,7 @@ def main() -> int:
     t_start = time.time()
     for detector in ("polarizer", "total"):
         for mode in MODES:
-            p = rows(mode, detector, args.seeds, args.episodes, args.steps)
+            p = rows(mode, detector, args.seeds, args.episodes, args.steps, params=args.params)
             final = p[:, -1]
             ok = "met" if final.mean() >= GOALS[mode] else "missed"
             lines.append(
@@ -163,7 +177,7 @@ def main() -> int:
             print(lines[-1], flush=True)
     text = "\n".join(lines) + "\n"
     if args.write:
-        replace_section(pathlib.Path(args.write), SECTION, text)
+        write_section(SECTION, text, pathlib.Path(args.write))
     return 0
 
 
@@ -185,29 +199,28 @@ def mismatch_table(args, cmd: str) -> int:
     ]
     t_start = time.time()
     for name, env in MISMATCH_ISSUE20.items():
+        if args.rows and name not in args.rows:
+            continue
         cells = []
         for mode in ("medium", "extreme"):
-            p = rows(mode, "polarizer", args.seeds, args.episodes, args.steps, env, args.first_seed)
+            p = rows(
+                mode,
+                "polarizer",
+                args.seeds,
+                args.episodes,
+                args.steps,
+                env,
+                args.first_seed,
+                args.params,
+            )
             final = p[:, -1]
             cells += [f"{final.mean():.4f} ± {final.std():.4f}", f"{final.min():.4f}"]
         cells.append(f"{(final >= 0.95).sum()}/{n_ep}")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
         print(lines[-1], f"[{time.time() - t_start:.0f} s]", flush=True)
     if args.write:
-        replace_section(pathlib.Path(args.write), SECTION_MISMATCH, "\n".join(lines) + "\n")
+        write_section(SECTION_MISMATCH, "\n".join(lines) + "\n", pathlib.Path(args.write))
     return 0
-
-
-def replace_section(path: pathlib.Path, section: str, text: str) -> None:
-    """Move the markdown section that starts with the line ``section`` (to the next "## ") to
-    the end of ``path``, as ``text``."""
-    old = path.read_text() if path.exists() else ""
-    if section in old:
-        head, rest = old.split(section, 1)
-        tail = rest.split("\n## ", 1)
-        old = head + ("## " + tail[1] if len(tail) > 1 else "")
-    path.write_text(old.rstrip("\n") + "\n\n" + text)
-    print("wrote", path)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_closed_loop import REPO, start, stop
-from bench_tracker import replace_section
+from doc_sections import write_section
 
 SECTION = "## Closed loop over DDS: `sim` + `tracker`"
 
@@ -110,7 +110,7 @@ def main() -> int:
     )
     print(text)
     if args.write:
-        replace_section(Path(args.write), SECTION, text)
+        write_section(SECTION, text, Path(args.write))
     return 0
 
 

@@ -25,7 +25,7 @@ from ops_sim_ros.config import make_config
 from ops_sim_ros.env import OpsEnv
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from bench_tracker import replace_section
+from doc_sections import write_section
 
 SECTION = "## Tracker: wavelength estimated online (issue 20)"
 WAVELENGTHS = (1009.4, 1019.7, 1030.0, 1040.3, 1050.6)  # -2 %, -1 %, 0, +1 %, +2 %
@@ -92,7 +92,7 @@ def main() -> int:
             )
             print(lines[-1], f"[{time.monotonic() - t0:.0f} s]", flush=True)
     if args.write:
-        replace_section(pathlib.Path(args.write), SECTION, "\n".join(lines) + "\n")
+        write_section(SECTION, "\n".join(lines) + "\n", pathlib.Path(args.write))
         print(f"wrote the section {SECTION!r} of {args.write}")
     return 0
 

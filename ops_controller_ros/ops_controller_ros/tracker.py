@@ -79,6 +79,10 @@ class TrackerParams:
     walk_cycles: float | None = None  # random walk per step allowed (None: 6x the model's jitter)
     drift_prior_cycles: float = 0.004  # how far one window may move the drift estimate (std)
     noisy_drift_prior_cycles: float = 0.002  # ... on a noisy detector (docs/tracker.md)
+    # The fastest drift the tracker believes, cycles per step (a fit beyond is clipped): on a
+    # periodic landscape a drift near a cycle per step reads like none (seen: a stage's drift
+    # estimate run up to 1.0 by knot hypotheses on a model 2 % off; extreme drifts <= 0.015).
+    max_drift_cycles: float = 0.1
     residual_tolerance: float = 1e-6  # mean squared residual that counts as a fit (to lock)
     # The least std of a reading about the model that the path fits assume (normalized
     # energies), added to what the fits' own residuals show (the model's accuracy on a clean
@@ -93,8 +97,8 @@ class TrackerParams:
     # on, that stage's drift changes by a variable with prior std knot_prior_cycles (0: never
     # try); a hypothesis is taken if its whole cost plus knot_penalty is the lowest. The prior
     # keeps the hypotheses off the mirror images of a change (a path that reads the same with
-    # the change's sign turned, at twice its size: 0.03 let them win, 92.7 -> 96.5 % locked
-    # with 0.015, scripts/tracker_knots.py).
+    # the change's sign turned, at twice its size): extreme, seeds 1000 and 1001 x 3000 steps
+    # of scripts/tracker_knots.py, 96.0-96.5 % locked with 0.03, 97.6-97.8 % with 0.015.
     knot_tolerance: float = 1e-6
     knot_prior_cycles: float = 0.015
     knot_start_cycles: float = 0.02  # the knot fits start this far off the prediction
@@ -150,6 +154,7 @@ class TrackerParams:
             ("walk_cycles", self.walk_cycles is None or self.walk_cycles > 0, "> 0 or None"),
             ("drift_prior_cycles", self.drift_prior_cycles > 0, "> 0"),
             ("noisy_drift_prior_cycles", self.noisy_drift_prior_cycles > 0, "> 0"),
+            ("max_drift_cycles", 0 < self.max_drift_cycles <= 0.5, "in (0, 0.5]"),
             ("residual_tolerance", self.residual_tolerance > 0, "> 0"),
             ("detector_noise", self.detector_noise >= 0, ">= 0"),
             ("misses", self.misses >= 1, ">= 1"),
@@ -536,7 +541,7 @@ class PhaseTracker:
         self.residual = float(cost[i])
         if self.residual <= self._tolerance():
             self._start_tracking(x[i] + (self._step - started) * fitted_drift)
-            self.drift = fitted_drift
+            self.drift = np.clip(fitted_drift, -p.max_drift_cycles, p.max_drift_cycles)
             self.acquisitions += 1
 
     def _start_tracking(self, x: np.ndarray) -> None:
@@ -753,7 +758,11 @@ class PhaseTracker:
             # A knot of one stage's drift? Fit the window with that stage's drift let loose, one
             # hypothesis per stage, and keep the best if it explains the readings clearly better
             # (a wrong drift otherwise pulls every stage's estimate off within a few readings).
-            x, drift, cost = self._knot_fit(predicted, x, drift, cost, u, y, age)
+            # A window with a whole-cycle move fits the period too: a model period off by r
+            # moves the phase by 2r at the move, which is no knot (seen: medium, wavelength
+            # -2 %, every move taken for a knot until a stage "drifted" a cycle per step).
+            x, drift, cost = self._knot_fit(predicted, x, drift, cost, u, y, age, ratio)
+            fitted_ratio = self._ratio
         if cost > lost:  # a knot of the drift, a fast walk: iterate further before giving up
             x, drift, cost = self._fit_path(
                 predicted, self.drift, u, y, age, p.iterations, ratio=ratio
@@ -770,7 +779,7 @@ class PhaseTracker:
             return
         self._bad_fits = 0
         self._fit_vars.append(cost)
-        self.drift = drift
+        self.drift = np.clip(drift, -p.max_drift_cycles, p.max_drift_cycles)
         # Not wrapped to one period: the estimate follows the delays continuously, so set-point
         # plus estimate stays the physical delay error (near 0 at the lock) and the model's pulse
         # envelopes are evaluated where the pulses are. Wrapped, the set-points carried the
@@ -785,7 +794,7 @@ class PhaseTracker:
         if ratio:
             self._correct_period(fitted_ratio)
 
-    def _knot_fit(self, predicted, x, drift, cost, u, y, age):
+    def _knot_fit(self, predicted, x, drift, cost, u, y, age, ratio=False):
         """The best of the present fit (x, drift, cost) and the knot hypotheses, all fitted at
         once: each stage's slope changed from each of the last ``knot_readings`` readings of the
         window on, started either way (one reading is even in the change); the steps before the
@@ -805,15 +814,16 @@ class PhaseTracker:
         x0[np.arange(m), stage] += change * steps_after[:, -1]
         drift0 = np.tile(self.drift, (m, 1))
         knots = (stage, first, change)
-        fits = self._fit_paths(x0, drift0, u, y, age, p.knot_iterations, knots=knots)
+        fits = self._fit_paths(x0, drift0, u, y, age, p.knot_iterations, ratio=ratio, knots=knots)
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
-        won = False
+        best_ratio, won = self._ratio, False
         penalty = p.noisy_knot_penalty if self._noisy() else p.knot_penalty
         for i in range(m):
             if fits.objective[i] + penalty < best_obj:
                 best = (fits.x[i], fits.drift[i], float(fits.data_cost[i]))
                 best_path, best_obj, won = fits.path[i], fits.objective[i], True
-        self._path, self._objective, self._ratio = best_path, best_obj, 0.0
+                best_ratio = fits.ratio[i]
+        self._path, self._objective, self._ratio = best_path, best_obj, best_ratio
         self.knots += won
         if won:
             self._knot_tick = self._tick
@@ -889,7 +899,8 @@ class PhaseTracker:
         self.residual = cost
         if self.residual <= self._tolerance():
             self._bad_fits = 0
-            self.estimate, self.drift = x, drift
+            self.estimate = x
+            self.drift = np.clip(drift, -p.max_drift_cycles, p.max_drift_cycles)
             self._history = deque(readings, maxlen=self._window_len)
             self._recovering = None
         elif len(readings) >= self._window_len:
