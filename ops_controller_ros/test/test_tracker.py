@@ -219,3 +219,17 @@ def test_a_knot_of_one_stage_is_found_on_that_stage_within_a_few_readings(seed):
     others = [0, 1, 3, 4]
     assert np.abs(tracker.drift[others] - old[others]).max() < 0.003, (tracker.drift, old)
     assert tracker.knots >= 1
+
+
+def test_whole_cycle_moves_on_a_model_off_in_wavelength_are_not_taken_for_knots():
+    """The rig's wavelength 2 % below the model's (medium, no drift): every whole-cycle move
+    then shifts the phase by ~0.04 cycles. The knot hypotheses fit the period with the path, so
+    the moves measure the wavelength instead of turning into drift (before: knots at every
+    move, a stage's drift run up to a cycle per step, an episode ending at 0.38)."""
+    for seed in (0, 3):
+        powers, tracker, _ = run("medium", seed, steps=300, env=dict(wavelength_nm=1009.4))
+        after = powers[np.argmax(powers >= 0.95) :]
+        assert np.mean(after >= 0.95) > 0.97 and after.min() > 0.5, (seed, after.min())
+        assert tracker.hops >= 20 and tracker.knots < tracker.hops, (tracker.knots, tracker.hops)
+        assert np.abs(tracker.drift).max() < 0.005  # no drift where there is none
+        assert abs(tracker.calibration.wavelength_nm - 1009.4) < 0.003 * 1009.4
