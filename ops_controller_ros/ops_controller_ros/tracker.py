@@ -104,6 +104,7 @@ class TrackerParams:
     knot_start_cycles: float = 0.02  # the knot fits start this far off the prediction
     knot_readings: int = 3  # a knot is looked for in the window's last this many steps
     knot_iterations: int = 6  # LM iterations of the knot hypotheses (30 starts at N = 5)
+    noisy_knot_iterations: int = 12  # ... on a noisy detector (noisy readings converge slower)
     knot_walk_sigmas: float = 2.0  # a path step this far off the drift (walk stds) tries knots
     knot_penalty: float = 4.0  # a knot hypothesis wins if its cost + this is the lowest
     # ... on a noisy detector (noise std >= noisy_threshold) the knot test fires on the noise
@@ -161,6 +162,8 @@ class TrackerParams:
             ("knot_tolerance", self.knot_tolerance > 0, "> 0"),
             ("knot_prior_cycles", self.knot_prior_cycles >= 0, ">= 0"),
             ("knot_readings", self.knot_readings >= 1, ">= 1"),
+            ("knot_iterations", self.knot_iterations >= 1, ">= 1"),
+            ("noisy_knot_iterations", self.noisy_knot_iterations >= 1, ">= 1"),
             ("fit_noise_floor", self.fit_noise_floor > 0, "> 0"),
             ("noisy_knot_penalty", self.noisy_knot_penalty >= 0, ">= 0"),
             ("recover_readings", 2 <= self.recover_readings <= self.window, "in [2, window]"),
@@ -814,7 +817,8 @@ class PhaseTracker:
         x0[np.arange(m), stage] += change * steps_after[:, -1]
         drift0 = np.tile(self.drift, (m, 1))
         knots = (stage, first, change)
-        fits = self._fit_paths(x0, drift0, u, y, age, p.knot_iterations, ratio=ratio, knots=knots)
+        iterations = p.noisy_knot_iterations if self._noisy() else p.knot_iterations
+        fits = self._fit_paths(x0, drift0, u, y, age, iterations, ratio=ratio, knots=knots)
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
         best_ratio, won = self._ratio, False
         penalty = p.noisy_knot_penalty if self._noisy() else p.knot_penalty
