@@ -7,7 +7,8 @@ worst reading, readings to the first lock.
 
 Usage (after `source setup.bash`):
   python scripts/bench_continuous_dds.py --controller tracker --mode hard --seconds 600 \
-      --seeds 1000 [--model models/n5_hard] [--nice -5] [--param hop_every:=0] [--out x.json]
+      --seeds 1000 [--model models/n5_hard] [--nice -5] [--param hop_every:=0]
+      [--sim-param lockstep:=true] [--out x.json]
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ def run_once(args, seed: int, logdir: Path) -> list[float]:
         ctl_cmd += ["-p", f"seed:={seed}"]
     for assignment in args.param:  # the controller node's own parameters, NAME:=VALUE
         ctl_cmd += ["-p", assignment]
+    for assignment in args.sim_param:  # the simulator's (e.g. lockstep:=true), NAME:=VALUE
+        sim_cmd += ["-p", assignment]
     tag = f"{args.controller}_{args.mode}_{seed}"
     if args.nice:  # the loop's priority on a busy machine (a rig's controller would have it)
         prio = ["nice", "-n", str(args.nice)]
@@ -49,10 +52,17 @@ def run_once(args, seed: int, logdir: Path) -> list[float]:
     node.create_subscription(Float32, TOPIC_POWER, lambda m: power.append(m.data), QOS_RELIABLE)
     ctl = None
     try:
+        # The simulator is up: publishing (free-running), or found (lockstep: it steps only
+        # when the controller commands)
+        lockstep = any(
+            a.replace(" ", "") in ("lockstep:=true", "lockstep:=True") for a in args.sim_param
+        )
         deadline = time.monotonic() + 30
-        while len(power) < 20 and time.monotonic() < deadline:  # the simulator is up
+        while time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
-        if len(power) < 20:
+            if len(power) >= 20 or (lockstep and node.count_publishers(TOPIC_POWER) > 0):
+                break
+        else:
             raise RuntimeError(f"no ops/power from the simulator (see {logdir})")
         ctl = start(ctl_cmd, logdir / f"ctl_{tag}.log")
         power.clear()
@@ -79,6 +89,12 @@ def main() -> int:
     ap.add_argument("--out", help="also write the figures to this JSON file")
     ap.add_argument(
         "--param", nargs="*", default=[], help="controller node parameters, NAME:=VALUE each"
+    )
+    ap.add_argument(
+        "--sim-param",
+        nargs="*",
+        default=[],
+        help="simulator node parameters, NAME:=VALUE each (lockstep:=true: one step per command)",
     )
     ap.add_argument(
         "--nice",
