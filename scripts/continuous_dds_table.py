@@ -5,7 +5,8 @@ docs/results/continuous_dds/CELL.json, CELL = tracker_MODE_600s, model_n5_MODE_6
 spgd_MODE_300s) and the in-process `evaluate --continuous --out` results of the same controller
 and mode (docs/results/continuous/CELL/evaluation.json, the longest run stored), and prints a
 markdown table: readings >= 0.95 after the first lock, lock losses (< 0.8), the longest, the
-worst reading after the lock, and the difference of the locked fractions.
+worst reading after the lock, the difference of the locked fractions and the file (a suffix
+names the commit of an older run: CELL_<commit>.json).
 
 Usage (after `source setup.bash`):
   python scripts/continuous_dds_table.py [--dds docs/results/continuous_dds]
@@ -51,15 +52,15 @@ def main() -> int:
             continue
         kind, mode, seconds, _ = match.groups()
         rows.append((("tracker", "model_n5", "spgd").index(kind), MODES.index(mode), kind, mode,
-                     int(seconds), json.loads(path.read_text())))  # fmt: skip
+                     int(seconds), json.loads(path.read_text()), path.name))  # fmt: skip
     print(
         "| controller | mode | DDS: time, readings | locked after first lock | losses | longest | "
         "worst after lock | nice | load at the end | in process (run) | in process locked | "
-        "difference |"
+        "difference | stored as |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for _, _, kind, mode, seconds, data in sorted(
-        rows, key=lambda r: (*r[:2], r[5]["args"].get("nice", 0))
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for _, _, kind, mode, seconds, data, stored in sorted(
+        rows, key=lambda r: (*r[:2], r[5]["args"].get("nice", 0), r[6])
     ):
         o = data["overall"]
         readings = sum(int(r.get("readings", 0)) for r in data.get("per_seed", []))
@@ -73,7 +74,7 @@ def main() -> int:
         print(
             f"| {name} | {mode} | {seconds} s, {readings} | {100 * o['locked_fraction']:.2f} % | "
             f"{o['losses']} | {o['longest_loss']} | {o['worst_after_lock']:.4f} | "
-            f"{data['args'].get('nice', 0)} | {load} | " + " | ".join(ref_cells) + " |"
+            f"{data['args'].get('nice', 0)} | {load} | " + " | ".join(ref_cells) + f" | {stored} |"
         )
     return 0
 

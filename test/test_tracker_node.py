@@ -66,3 +66,20 @@ def test_bad_parameter_stops_the_tracker_before_it_spins(procs):
     assert tracker.wait_exit(30) == 2
     assert "detector" in tracker.output and "polarizer, total" in tracker.output
     assert_no_traceback(tracker.output)
+
+
+def test_steps_that_ran_before_a_command_came_are_counted_over_dds(procs, observer):
+    """A simulator free-running at 1 kHz steps again before many commands arrive: the tracker
+    must learn of those steps from the DDS sequence numbers of ``ops/power`` (and log them). It
+    never did while its callback could be called without the message info (rclpy then passes
+    none): every reading was taken for the next step."""
+    sim_params = ("stage:=3", "mode:=medium", "seed:=4", "rate_hz:=1000")
+    start(procs, "sim", "ops_sim_ros", "sim", *sim_params)
+    observer.wait_for_subscriber()
+    tracker = start(procs, "tracker", "ops_controller_ros", "tracker", "seed:=4")
+    tracker.wait_for("closing the loop", timeout=30)
+    line = tracker.wait_for(r"\((\d+) simulator steps before a command came\)", timeout=30)
+    assert int(line.group(1)) > 0
+    tracker.signal(signal.SIGINT)
+    assert tracker.wait_exit(15) == 0
+    assert_no_traceback(tracker.output)

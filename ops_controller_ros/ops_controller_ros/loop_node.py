@@ -175,7 +175,10 @@ class ControllerLoopNode(Node):
         if self.ctrl is None or self.ctrl.stage != self._delays.size:
             self._start_if_found()
 
-    def _on_power(self, msg: Float32, info=None):
+    def _on_power(self, msg: Float32, info):
+        # Two positional parameters and no default: rclpy passes the MessageInfo only to a
+        # callback that cannot be called with the message alone (with ``info=None`` it never
+        # did, so the steps between readings were always taken as 1 over DDS).
         power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
         if power is None or self.ctrl is None or not self._commands.matched:
             return
