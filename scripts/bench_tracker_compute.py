@@ -4,10 +4,10 @@
 In process, in the testing environment (N = 5, polarizer detector): ``command`` + ``observe`` of
 every reading after the first lock (median, p99, max, share over 10 ms), with BLAS on one thread
 (what every node and CLI sets, ops_sim_ros.threads) and on the library's default (one per core),
-plus the time of one knot test (the 2N hypotheses of :meth:`PhaseTracker._knot_fit`) and one
-tracking fit on a locked state. Timings depend on the load: the 1-minute load average is printed
-and written beside them; ``--busy N`` runs N busy-looping processes beside the measurement (a
-machine whose cores are all taken, where a second BLAS thread waits for one).
+plus the time of one knot test (the hypotheses of :meth:`PhaseTracker._knot_fit`: stage x knot
+position x side) and one tracking fit on a locked state. Timings depend on the load: the 1-minute
+load average is printed and written beside them; ``--busy N`` runs N busy-looping processes beside
+the measurement (a machine whose cores are all taken, where a second BLAS thread waits for one).
 
 Usage (after `source setup.bash`):
   python scripts/bench_tracker_compute.py [--mode extreme] [--steps 3000] [--seeds 1000]
@@ -110,7 +110,8 @@ def write(args, cores: int, rows: list[str]) -> None:
             "lock: `command` + `observe` of the tracker in process; a node at 100 Hz has 10 ms. "
             "Fit timings: median of "
             f"{args.repeats} calls on the run's last window (one tracking fit of "
-            "`track_iterations`; one knot test: the 2N hypotheses, fitted together).",
+            "`track_iterations`; one knot test: its hypotheses (stage x knot position x side), "
+            "fitted together).",
             "",
             "| BLAS threads | seed | median ms | p99 ms | max ms | readings > 10 ms, % | "
             "tracking fit ms | knot test ms | readings >= 0.95, % | load (1 min) |",
