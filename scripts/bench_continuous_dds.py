@@ -52,18 +52,13 @@ def run_once(args, seed: int, logdir: Path) -> list[float]:
     node.create_subscription(Float32, TOPIC_POWER, lambda m: power.append(m.data), QOS_RELIABLE)
     ctl = None
     try:
-        # The simulator is up: publishing (free-running), or found (lockstep: it steps only
-        # when the controller commands)
-        lockstep = any(
-            a.replace(" ", "") in ("lockstep:=true", "lockstep:=True") for a in args.sim_param
-        )
+        # The simulator is up once its ops/power publisher is found (a lockstep one publishes
+        # nothing until the controller commands; the controller node waits for its readings)
         deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
+        while not node.count_publishers(TOPIC_POWER) and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
-            if len(power) >= 20 or (lockstep and node.count_publishers(TOPIC_POWER) > 0):
-                break
-        else:
-            raise RuntimeError(f"no ops/power from the simulator (see {logdir})")
+        if not node.count_publishers(TOPIC_POWER):
+            raise RuntimeError(f"no ops/power publisher from the simulator (see {logdir})")
         ctl = start(ctl_cmd, logdir / f"ctl_{tag}.log")
         power.clear()
         t0 = time.monotonic()

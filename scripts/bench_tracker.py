@@ -204,15 +204,9 @@ def mismatch_table(args, cmd: str) -> int:
         cells = []
         for mode in ("medium", "extreme"):
             p = rows(
-                mode,
-                "polarizer",
-                args.seeds,
-                args.episodes,
-                args.steps,
-                env,
-                args.first_seed,
-                args.params,
-            )
+                mode, "polarizer", args.seeds, args.episodes, args.steps,
+                env=env, first_seed=args.first_seed, params=args.params,
+            )  # fmt: skip
             final = p[:, -1]
             cells += [f"{final.mean():.4f} ± {final.std():.4f}", f"{final.min():.4f}"]
         cells.append(f"{(final >= 0.95).sum()}/{n_ep}")

@@ -544,7 +544,7 @@ class PhaseTracker:
         self.residual = float(cost[i])
         if self.residual <= self._tolerance():
             self._start_tracking(x[i] + (self._step - started) * fitted_drift)
-            self.drift = np.clip(fitted_drift, -p.max_drift_cycles, p.max_drift_cycles)
+            self.drift = self._bounded(fitted_drift)
             self.acquisitions += 1
 
     def _start_tracking(self, x: np.ndarray) -> None:
@@ -578,6 +578,11 @@ class PhaseTracker:
         if self._noisy():
             var = max(var, measured)
         return (p.fit_noise_floor**2 + max(var, p.detector_noise**2)) ** 0.5
+
+    def _bounded(self, drift: np.ndarray) -> np.ndarray:
+        """A fitted drift as the tracker takes it: within +- ``max_drift_cycles``."""
+        limit = self.params.max_drift_cycles
+        return np.clip(drift, -limit, limit)
 
     def _walk_sigma(self) -> float:
         w = self.params.walk_cycles
@@ -630,12 +635,13 @@ class PhaseTracker:
         d = z.shape[1]
         nz = k * n + n  # the path and the drift (then r, if fitted, then the knot's change)
         # The normal equations by their parts (no full Jacobian is formed): the readings (block
-        # diagonal in the path, plus r), the walk between readings (linear, the same for every
-        # start) and the drift prior (diagonal, per start).
+        # diagonal in the path, plus r), the walk between readings (linear; the same for every
+        # start except in a knot's column) and the drift prior (diagonal, per start).
+        gaps = np.maximum(age[:-1] - age[1:], 1.0)  # steps between consecutive readings
         walk = np.zeros(((k - 1) * n, d))
-        for i in range(1, k):  # X_i - X_i-1 - gap mu, std walk sqrt(gap) (gap: steps between)
+        for i in range(1, k):  # X_i - X_i-1 - gap mu, std walk sqrt(gap)
             rows = slice((i - 1) * n, i * n)
-            gap = max(age[i - 1] - age[i], 1.0)
+            gap = gaps[i - 1]
             walk[rows, i * n : (i + 1) * n] = np.eye(n) / gap**0.5
             walk[rows, (i - 1) * n : i * n] = -np.eye(n) / gap**0.5
             walk[rows, k * n : nz] = -np.eye(n) * gap**0.5
@@ -647,10 +653,9 @@ class PhaseTracker:
         if knots is not None:  # the walk steps after each start's knot: minus gap * delta
             walk = walk.copy()
             for i in range(1, k):
-                gap = max(age[i - 1] - age[i], 1.0)
                 after = np.flatnonzero(i >= np.asarray(knots[1]))
                 rows = (i - 1) * n + np.asarray(knots[0])[after]
-                walk[after, rows, d - 1] = -(gap**0.5)
+                walk[after, rows, d - 1] = -(gaps[i - 1] ** 0.5)
             prior_w[:, d - 1] = 1.0 / p.knot_prior_cycles**2
         walk_normal = walk.transpose(0, 2, 1) @ walk / w_sd**2
         prior_mean = np.zeros((m, d))
@@ -758,9 +763,10 @@ class PhaseTracker:
             and p.knot_prior_cycles > 0
             and (cost > self._tolerance(p.knot_tolerance) or self._walk_jump() > p.knot_walk_sigmas)
         ):
-            # A knot of one stage's drift? Fit the window with that stage's drift let loose, one
-            # hypothesis per stage, and keep the best if it explains the readings clearly better
-            # (a wrong drift otherwise pulls every stage's estimate off within a few readings).
+            # A knot of one stage's drift? Fit the window under one hypothesis per stage, knot
+            # position and side (_knot_fit), and keep the best if it explains the readings
+            # clearly better (a wrong drift otherwise pulls every stage's estimate off within a
+            # few readings).
             # A window with a whole-cycle move fits the period too: a model period off by r
             # moves the phase by 2r at the move, which is no knot (seen: medium, wavelength
             # -2 %, every move taken for a knot until a stage "drifted" a cycle per step).
@@ -782,7 +788,7 @@ class PhaseTracker:
             return
         self._bad_fits = 0
         self._fit_vars.append(cost)
-        self.drift = np.clip(drift, -p.max_drift_cycles, p.max_drift_cycles)
+        self.drift = self._bounded(drift)
         # Not wrapped to one period: the estimate follows the delays continuously, so set-point
         # plus estimate stays the physical delay error (near 0 at the lock) and the model's pulse
         # envelopes are evaluated where the pulses are. Wrapped, the set-points carried the
@@ -802,7 +808,8 @@ class PhaseTracker:
         once: each stage's slope changed from each of the last ``knot_readings`` readings of the
         window on, started either way (one reading is even in the change); the steps before the
         knot keep the present drift. Taken in turn, a hypothesis wins only if its whole cost plus
-        ``knot_penalty`` is below the best so far (the path of the winner is kept)."""
+        ``knot_penalty`` (``noisy_knot_penalty`` on a noisy detector) is below the best so far
+        (the path and period error of the winner are kept)."""
         p = self.params
         n, k = self.stage, len(u)
         firsts = np.arange(k - 1, max(k - 1 - p.knot_readings, 0), -1)
@@ -811,10 +818,10 @@ class PhaseTracker:
         )
         change = sign * p.knot_start_cycles
         m = stage.size
-        # start: the prediction's path, the knotted stage moved by the change after its knot
-        steps_after = np.maximum(age[first - 1][:, None] - age[None, :], 0.0)  # (M, K)
+        # start: the prediction, the knotted stage moved by the change over the steps since its
+        # knot (age[first - 1]: from the reading before the knot to the latest)
         x0 = np.tile(predicted, (m, 1))
-        x0[np.arange(m), stage] += change * steps_after[:, -1]
+        x0[np.arange(m), stage] += change * age[first - 1]
         drift0 = np.tile(self.drift, (m, 1))
         knots = (stage, first, change)
         iterations = p.noisy_knot_iterations if self._noisy() else p.knot_iterations
@@ -903,8 +910,7 @@ class PhaseTracker:
         self.residual = cost
         if self.residual <= self._tolerance():
             self._bad_fits = 0
-            self.estimate = x
-            self.drift = np.clip(drift, -p.max_drift_cycles, p.max_drift_cycles)
+            self.estimate, self.drift = x, self._bounded(drift)
             self._history = deque(readings, maxlen=self._window_len)
             self._recovering = None
         elif len(readings) >= self._window_len:

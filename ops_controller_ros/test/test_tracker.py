@@ -199,9 +199,8 @@ def test_the_fits_weigh_the_readings_by_their_own_residuals():
 def test_a_knot_of_one_stage_is_found_on_that_stage_within_a_few_readings(seed):
     """Locked in hard mode (one drift shared by all stages), stage 2's slope turns by 0.015
     cycles per step: no reading falls below 0.8 (a lock loss), and after a few readings the
-    tracker's drift of
-    that stage is the new one while the others keep theirs (a knot hypothesis per stage and
-    position in the window)."""
+    tracker's drift of that stage is the new one while the others keep theirs (a knot
+    hypothesis per stage and position in the window)."""
     powers, tracker, sim = run("hard", seed, steps=100)
     assert powers[-20:].min() > 0.95
     period = sim.optical_period_fs
