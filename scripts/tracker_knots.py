@@ -21,7 +21,7 @@ import time
 from collections import Counter
 
 import numpy as np
-from ops_controller_ros.controllers import make_controller
+from ops_controller_ros.controllers import make_controller, next_command
 from ops_gym_bridge.cli_args import parse_key_values
 from ops_gym_bridge.continuous import lock_figures
 from ops_sim_ros.config import make_config
@@ -60,7 +60,7 @@ def tracker_run(mode: str, steps: int, seed: int, params: dict) -> dict:
     knots = []  # (step from which the new slope acts, its change in cycles per step)
     for t in range(steps):
         t0 = time.perf_counter()
-        command = ctl.command()
+        command = next_command(ctl)
         t1 = time.perf_counter()
         r = env.step_setpoints(command)
         power[t] = r.power[0]

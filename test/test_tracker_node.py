@@ -83,3 +83,18 @@ def test_steps_that_ran_before_a_command_came_are_counted_over_dds(procs, observ
     tracker.signal(signal.SIGINT)
     assert tracker.wait_exit(15) == 0
     assert_no_traceback(tracker.output)
+
+
+def test_a_knot_test_after_the_command_revises_it_over_dds(procs, observer):
+    """Extreme mode, free-running: the tracker answers each reading first and tests it for a
+    knot of the drift after (``defer_knot_test``, its default); a command the test changed is
+    sent again (and logged), and the lock is reached and held meanwhile."""
+    start(procs, "sim", "ops_sim_ros", "sim", "stage:=5", "mode:=extreme", "seed:=8")
+    observer.wait_for_subscriber()
+    tracker = start(procs, "tracker", "ops_controller_ros", "tracker", "seed:=8")
+    tracker.wait_for("closing the loop", timeout=30)
+    line = tracker.wait_for(r"reading \d+ \(locked;.*\((\d+) commands revised\)", timeout=90)
+    assert int(line.group(1)) > 0
+    tracker.signal(signal.SIGINT)
+    assert tracker.wait_exit(15) == 0
+    assert_no_traceback(tracker.output)

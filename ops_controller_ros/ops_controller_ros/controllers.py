@@ -11,6 +11,10 @@ transport (the ROS nodes and the in-process evaluation drive them the same way):
   after the previous reading (more than 1 when a free-running simulator stepped before the
   command came; the nodes count them, :mod:`ops_controller_ros.loop_node`).
 
+A controller may also have ``think() -> bool``: work that can wait until the command is out (the
+tracker's deferred knot test); True when it changed the command already given, which
+``command()`` then returns anew. :func:`next_command` is the in-process loop's way of calling it.
+
 A controller is built from the *nominal* model of the rig (an :class:`~ops_sim_ros.config.OpsConfig`
 holding the wavelength, pulse width, detector, ...), never from the simulator's true state.
 """
@@ -51,6 +55,17 @@ CONTROLLERS = tuple(_FACTORIES)
 #: The parameters under which the benchmark runs each controller: the paper's SPGD-PID (no
 #: normalization, no restarts: the baseline of Table 1, which stalls in medium and hard modes).
 BENCHMARK_PARAMS: dict[str, dict[str, Any]] = {"spgd": dict(SPGD_PAPER)}
+
+
+def next_command(ctl) -> np.ndarray:
+    """The set-points to apply now, as a node with time to spare before the next step gives
+    them: ``command()``, then ``think()`` if the controller has one, and the revised command if
+    that changed it."""
+    command = ctl.command()
+    think = getattr(ctl, "think", None)
+    if think is not None and think():
+        command = ctl.command()
+    return command
 
 
 def make_controller(

@@ -88,6 +88,7 @@ class ControllerLoopNode(Node):
         self._last_reading_at = float("-inf")
         self._last_power_seq = None  # DDS sequence number of the last ops/power reading used
         self.late_steps = 0  # simulator steps that ran on old set-points (the command was late)
+        self.revised_commands = 0  # commands replaced once the controller had thought further
 
         # Delays first: when several are ready the executor takes them in creation order. The
         # latched subscription gives the set-points at start (a lockstep simulator publishes
@@ -200,6 +201,16 @@ class ControllerLoopNode(Node):
         if now >= self._next_allowed:
             self._next_allowed = now + self._min_period
             self._send()
+        self._think()
+
+    def _think(self):
+        """The controller's work that can wait until the command is out (``think()``, see
+        :mod:`ops_controller_ros.controllers`), in the time before the next step; the revised
+        command at once if that changed it."""
+        think = getattr(self.ctrl, "think", None)
+        if think is not None and think() and self._commands.pending is not None:
+            self.revised_commands += 1
+            self._send()
 
     def _watchdog(self):
         now = time.monotonic()
@@ -235,4 +246,5 @@ class ControllerLoopNode(Node):
             )
             return
         late = f" ({self.late_steps} simulator steps before a command came)" * bool(self.late_steps)
+        late += f" ({self.revised_commands} commands revised)" * bool(self.revised_commands)
         self.get_logger().info(f"{self.progress()}: P_N/P_max = {self.ctrl.last_power:.4f}{late}")

@@ -105,11 +105,23 @@ class TrackerParams:
     knot_readings: int = 3  # a knot is looked for in the window's last this many steps
     knot_iterations: int = 6  # LM iterations of the knot hypotheses (30 starts at N = 5)
     noisy_knot_iterations: int = 12  # ... on a noisy detector (noisy readings converge slower)
+    # After knot_prune_after iterations only the knot_keep best hypotheses iterate on (0: all):
+    # the Jacobians of the losing hypotheses are most of the knot test's compute.
+    knot_prune_after: int = 2
+    knot_keep: int = 0
+    # Compute allowed to the knot test, ms (0: all its iterations): a rig steps on its own
+    # clock, and a knot test's outcome is worth most before the next step (the node: 6 ms).
+    knot_budget_ms: float = 0.0
     knot_walk_sigmas: float = 2.0  # a path step this far off the drift (walk stds) tries knots
     knot_penalty: float = 4.0  # a knot hypothesis wins if its cost + this is the lowest
     # ... on a noisy detector (noise std >= noisy_threshold) the knot test fires on the noise
     # far more often, and a hypothesis must win by this much (measured in docs/tracker.md)
     noisy_knot_penalty: float = 8.0
+    # Answer first, test for knots after: the command after a suspicious reading aims by the
+    # plain fit and the knot test runs once it is out (think()), its outcome acting from the
+    # next command. In real time a knot test (5-15 ms) does not fit before a 100 Hz rig's next
+    # step: done first, the command came a step late, exactly after the knots (docs/tracker.md).
+    defer_knot_test: bool = False
     recover_readings: int = 4  # readings after a failed fit before a local re-fit
     acquire_drift: bool = True  # fit each stage's drift too when a static fit fails
     step_budget_ms: float = 0.0  # global search per reading (0: all in the reading that starts it)
@@ -163,6 +175,9 @@ class TrackerParams:
             ("knot_prior_cycles", self.knot_prior_cycles >= 0, ">= 0"),
             ("knot_readings", self.knot_readings >= 1, ">= 1"),
             ("knot_iterations", self.knot_iterations >= 1, ">= 1"),
+            ("knot_prune_after", self.knot_prune_after >= 0, ">= 0"),
+            ("knot_keep", self.knot_keep >= 0, ">= 0"),
+            ("knot_budget_ms", self.knot_budget_ms >= 0, ">= 0"),
             ("noisy_knot_iterations", self.noisy_knot_iterations >= 1, ">= 1"),
             ("fit_noise_floor", self.fit_noise_floor > 0, "> 0"),
             ("noisy_knot_penalty", self.noisy_knot_penalty >= 0, ">= 0"),
@@ -267,6 +282,8 @@ class PhaseTracker:
         self._path = np.zeros((0, self.stage))
         self._objective = float("nan")
         self._search = None  # the global search under way (a generator), if any
+        self._knot_job = None  # the knot test think() is to run (defer_knot_test)
+        self._revise = False  # think() changed the command given: command() gives it anew
         self.last_power = float("nan")
 
     def _fit_window(self, noisy: bool) -> int:
@@ -293,8 +310,9 @@ class PhaseTracker:
         command whose reading did not come), the same set-points: a second call must not draw
         new excursions or undo a whole-cycle move that the first one made (seen over DDS: the
         re-sent command lost its move while the tracker fitted the period on it)."""
-        if self._awaiting:
+        if self._awaiting and not self._revise:
             return self._last_command * self.period_fs
+        self._revise = False
         p = self.params
         if self.estimate is not None:
             # aim at the stacking point of the next step, by the smallest move modulo a period
@@ -318,7 +336,12 @@ class PhaseTracker:
     def _plan_hop(self):
         """A whole-cycle move of one stage's set-point now, if one is due: (stage, cycles)."""
         p = self.params
-        if not p.hop_every or self._bad_fits or self._tick < self._hop_next:
+        if (
+            not p.hop_every
+            or self._bad_fits
+            or self._knot_job is not None
+            or self._tick < self._hop_next
+        ):
             return None
         # only on a clean lock: not right after a knot of the drift, not on a low reading
         if self._tick - self._knot_tick < self._window_len or not self.last_power >= HOP_POWER:
@@ -349,6 +372,7 @@ class PhaseTracker:
         steps = int(steps)
         if steps < 1:
             raise ValueError(f"steps since the previous reading must be >= 1 (got {steps})")
+        self.think()  # a deferred knot test nobody ran: its outcome first
         self._awaiting = False
         self.last_power = float(power)
         self._tick += 1
@@ -588,7 +612,9 @@ class PhaseTracker:
         w = self.params.walk_cycles
         return max(6.0 * self.model.jitter_sigma_cycles, 1e-4) if w is None else w
 
-    def _fit_path(self, x_now, drift, u, y, age, iterations: int, drift_prior=None, ratio=False):
+    def _fit_path(
+        self, x_now, drift, u, y, age, iterations: int, drift_prior=None, ratio=False, deadline=None
+    ):
         """Moving-horizon fit of the window: the errors at every reading X (K, N) and the drift
         mu (N,), most probable given the readings (std sqrt(tolerance + noise)), a random walk
         between readings (X_k - X_k-1 - mu, std ``walk``) and the drift's prior (the present
@@ -602,12 +628,26 @@ class PhaseTracker:
         left in ``self._ratio`` and the returned x is the error as the model sees it (r applied
         at the latest reading)."""
         prior = None if drift_prior is None else np.asarray(drift_prior)[None]
-        fit = self._fit_paths(x_now[None], drift[None], u, y, age, iterations, prior, ratio)
+        fit = self._fit_paths(
+            x_now[None], drift[None], u, y, age, iterations, prior, ratio, deadline=deadline
+        )
         self._path, self._objective, self._ratio = fit.path[0], fit.objective[0], fit.ratio[0]
         return fit.x[0], fit.drift[0], float(fit.data_cost[0])
 
     def _fit_paths(
-        self, x_now, drift, u, y, age, iterations: int, drift_prior=None, ratio=False, knots=None
+        self,
+        x_now,
+        drift,
+        u,
+        y,
+        age,
+        iterations: int,
+        drift_prior=None,
+        ratio=False,
+        knots=None,
+        prune=None,
+        path0=None,
+        deadline=None,
     ):
         """:meth:`_fit_path` for M starts at once (x_now, drift: (M, N); drift_prior: (M, N)
         or None), each its own Levenberg-Marquardt: the hypotheses of a knot or a recovery cost
@@ -617,7 +657,13 @@ class PhaseTracker:
         ``knots``: (stage (M,), first (M,), change (M,)) a knot hypothesis per start: from
         reading ``first`` of the window on, that stage drifts by mu + delta, delta one more
         variable (start ``change``, prior std ``knot_prior_cycles``); the path before the knot
-        keeps the drift mu and its prior. The returned drift is the one after the knot."""
+        keeps the drift mu and its prior. The returned drift is the one after the knot.
+
+        ``prune``: (iterations, keep): after that many iterations only the ``keep`` starts of
+        lowest cost iterate on (the others return where they were); most of the cost is the
+        Jacobian of every start at every iteration. ``path0``: (M, K, N) the starts' paths (by
+        default straight back from x_now by the drift). ``deadline`` (time.perf_counter()): no
+        iteration starts after it (at least one runs)."""
         p = self.params
         k, n = u.shape
         m = x_now.shape[0]
@@ -627,7 +673,9 @@ class PhaseTracker:
         if drift_prior is None:
             prior = p.noisy_drift_prior_cycles if self._noisy() else p.drift_prior_cycles
             drift_prior = np.full((m, n), prior)
-        path = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
+        if path0 is None:  # the straight path back from x_now by the drift
+            path0 = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
+        path = path0
         extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
         change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
         z = np.concatenate([path.reshape(m, k * n), drift, extra, change], axis=1)
@@ -680,19 +728,20 @@ class PhaseTracker:
             jac_k = (pred[:, :, 1:] - pred[:, :, :1]).transpose(0, 1, 3, 2) / h  # M, K, R, N
             return pred[:, :, 0] - y[None], jac_k
 
-        def objective(z, err):
-            dz = z - prior_mean
-            walk_res = np.einsum("mrd,md->mr", walk, z)
+        def objective(z, err, i):
+            """The whole cost of starts i at z (len(i), D)."""
+            dz = z - prior_mean[i]
+            walk_res = np.einsum("mrd,md->mr", walk[i], z)
             return (
                 np.einsum("mkr,mkr->m", err, err) / r_sd**2
                 + np.einsum("mr,mr->m", walk_res, walk_res) / w_sd**2
-                + np.einsum("md,md,md->m", dz, dz, prior_w)
+                + np.einsum("md,md,md->m", dz, dz, prior_w[i])
             )
 
-        def normal_equations(z, err, jac_k):
-            """J^T J (M, D, D) and J^T r (M, D) of the whole cost at z."""
-            jtj = walk_normal.copy()
-            jtr = np.einsum("mde,me->md", walk_normal, z)
+        def normal_equations(z, err, jac_k, i):
+            """J^T J (M, D, D) and J^T r (M, D) of the whole cost of starts i at z."""
+            jtj = walk_normal[i]
+            jtr = np.einsum("mde,me->md", jtj, z)
             data_jtj = np.einsum("mkri,mkrj->mkij", jac_k, jac_k) / r_sd**2  # (M, K, N, N)
             jtj[:, blocks[:, :, None], blocks[:, None, :]] += data_jtj
             jtr[:, blocks] += np.einsum("mkri,mkr->mki", jac_k, err) / r_sd**2
@@ -704,30 +753,37 @@ class PhaseTracker:
                 jtj[:, nz, nz] += np.einsum("mkr,mkr->m", g, g) / r_sd**2
                 jtr[:, nz] += np.einsum("mkr,mkr->m", g, err) / r_sd**2
             idx = np.arange(d)
-            jtj[:, idx, idx] += prior_w
-            jtr += prior_w * (z - prior_mean)
+            jtj[:, idx, idx] += prior_w[i]
+            jtr += prior_w[i] * (z - prior_mean[i])
             return jtj, jtr
 
         err, jac_k = readings(z, True)
-        cost = objective(z, err)
+        act = np.arange(m)  # the starts still iterating
+        cost = objective(z, err, act)
         data_cost = np.mean(err * err, axis=(1, 2))
         lam = np.full(m, 1e-3)
         eye = np.eye(d)
-        for _ in range(iterations):
-            jtj, jtr = normal_equations(z, err, jac_k)
+        for it in range(iterations):
+            if it and deadline is not None and time.perf_counter() >= deadline:
+                break
+            if prune is not None and it == prune[0] and act.size > prune[1]:
+                act = np.sort(np.argsort(cost)[: prune[1]])
+            za = z[act]
+            jtj, jtr = normal_equations(za, err[act], jac_k[act], act)
             diag = np.einsum("mii->mi", jtj)
-            a = jtj + (lam[:, None] * (diag + 1e-12))[:, :, None] * eye[None]
+            a = jtj + (lam[act, None] * (diag + 1e-12))[:, :, None] * eye[None]
             step = -np.linalg.solve(a, jtr[:, :, None])[:, :, 0]
-            trial = z + np.clip(step, -0.1, 0.1)
+            trial = za + np.clip(step, -0.1, 0.1)
             t_err, _ = readings(trial, False)
-            t_cost = objective(trial, t_err)
-            better = t_cost < cost
-            lam = np.where(better, lam * 0.3, lam * 10.0)
+            t_cost = objective(trial, t_err, act)
+            better = t_cost < cost[act]
+            lam[act] = np.where(better, lam[act] * 0.3, lam[act] * 10.0)
             if better.any():  # the Jacobian again only where a start moved
-                z = np.where(better[:, None], trial, z)
-                cost = np.where(better, t_cost, cost)
-                data_cost = np.where(better, np.mean(t_err * t_err, axis=(1, 2)), data_cost)
-                err[better], jac_k[better] = readings(z[better], True)
+                moved = act[better]
+                z[moved] = trial[better]
+                cost[moved] = t_cost[better]
+                data_cost[moved] = np.mean(t_err[better] ** 2, axis=(1, 2))
+                err[moved], jac_k[moved] = readings(z[moved], True)
         fitted_ratio = z[:, nz] if ratio else np.zeros(m)
         x = z[:, (k - 1) * n : k * n] + fitted_ratio[:, None] * u_centred[-1]
         fitted_drift = z[:, k * n : nz].copy()
@@ -756,8 +812,6 @@ class PhaseTracker:
         x, drift, cost = self._fit_path(
             predicted, self.drift, u, y, age, p.track_iterations, ratio=ratio
         )
-        fitted_ratio = self._ratio
-        lost = self._tolerance(p.lost_tolerance)
         if (
             hop is None
             and p.knot_prior_cycles > 0
@@ -770,11 +824,60 @@ class PhaseTracker:
             # A window with a whole-cycle move fits the period too: a model period off by r
             # moves the phase by 2r at the move, which is no knot (seen: medium, wavelength
             # -2 %, every move taken for a knot until a stage "drifted" a cycle per step).
-            x, drift, cost = self._knot_fit(predicted, x, drift, cost, u, y, age, ratio)
-            fitted_ratio = self._ratio
+            job = (predicted, x, drift, cost, u, y, age, ratio)
+            if p.defer_knot_test:
+                # Answer first: the next command aims by the plain fit, and think() (or the
+                # next observe) runs the test and finishes the reading.
+                self._knot_job = (job, self._path, self._objective, self._ratio)
+                if cost <= self._tolerance(p.lost_tolerance):
+                    self.estimate, self.drift = x, self._bounded(drift)
+                else:
+                    self.estimate = predicted
+                return
+            deadline = self._knot_deadline()
+            x, drift, cost = self._knot_fit(*job, deadline=deadline)
+            self._finish_track(predicted, x, drift, cost, u, y, age, ratio, deadline)
+            return
+        self._finish_track(predicted, x, drift, cost, u, y, age, ratio)
+
+    def think(self) -> bool:
+        """Work that may wait until the command is out: the knot test the last reading asked
+        for, with ``defer_knot_test`` (a node calls this after publishing the command, in the
+        time before the next step; :meth:`observe` calls it first if nobody did). True when its
+        outcome changed the command already given: :meth:`command` then gives the revised one
+        (a node sends it at once; if the step ran on the first one, its reading is not paired
+        with the revised command and is not used)."""
+        if self._knot_job is None:
+            return False
+        (predicted, *rest), path, objective, fitted_ratio = self._knot_job
+        self._knot_job = None
+        aimed = (self.estimate, self.drift)  # what the command given aims by
+        self._path, self._objective, self._ratio = path, objective, fitted_ratio
+        deadline = self._knot_deadline()
+        x, drift, cost = self._knot_fit(predicted, *rest, deadline=deadline)
+        u, y, age, ratio = rest[3:]
+        self._finish_track(predicted, x, drift, cost, u, y, age, ratio, deadline)
+        changed = self.estimate is None or not all(
+            map(np.array_equal, aimed, (self.estimate, self.drift))
+        )
+        self._revise = self._awaiting and changed
+        return self._revise
+
+    def _knot_deadline(self):
+        """When the knot test and the fits after it must stop (``knot_budget_ms``), or None."""
+        budget = self.params.knot_budget_ms
+        return time.perf_counter() + budget / 1e3 if budget else None
+
+    def _finish_track(self, predicted, x, drift, cost, u, y, age, ratio, deadline=None) -> None:
+        """Take a tracking fit (x, drift, cost) of the window (u, y, age): iterate further if
+        its readings left the model (until ``deadline``, if given), count a bad fit (keep the
+        prediction) or take it."""
+        p = self.params
+        fitted_ratio = self._ratio
+        lost = self._tolerance(p.lost_tolerance)
         if cost > lost:  # a knot of the drift, a fast walk: iterate further before giving up
             x, drift, cost = self._fit_path(
-                predicted, self.drift, u, y, age, p.iterations, ratio=ratio
+                predicted, self.drift, u, y, age, p.iterations, ratio=ratio, deadline=deadline
             )
             fitted_ratio = self._ratio
         self.residual = cost
@@ -803,7 +906,7 @@ class PhaseTracker:
         if ratio:
             self._correct_period(fitted_ratio)
 
-    def _knot_fit(self, predicted, x, drift, cost, u, y, age, ratio=False):
+    def _knot_fit(self, predicted, x, drift, cost, u, y, age, ratio=False, deadline=None):
         """The best of the present fit (x, drift, cost) and the knot hypotheses, all fitted at
         once: each stage's slope changed from each of the last ``knot_readings`` readings of the
         window on, started either way (one reading is even in the change); the steps before the
@@ -818,14 +921,30 @@ class PhaseTracker:
         )
         change = sign * p.knot_start_cycles
         m = stage.size
-        # start: the prediction, the knotted stage moved by the change over the steps since its
-        # knot (age[first - 1]: from the reading before the knot to the latest)
-        x0 = np.tile(predicted, (m, 1))
-        x0[np.arange(m), stage] += change * age[first - 1]
+        # start: the path of the prediction (back from it by the drift), bent at the knot: the
+        # knotted stage moved on by the change for every step since the reading before the knot
+        # (a straight path through the bent end needed twice the iterations for the same fits)
+        line = predicted[None] - age[:, None] * self.drift[None]  # (K, N)
+        path0 = np.tile(line, (m, 1, 1))
+        since = np.clip(age[first - 1][:, None] - age[None, :], 0.0, None)  # (M, K)
+        path0[np.arange(m)[:, None], np.arange(k)[None], stage[:, None]] += change[:, None] * since
         drift0 = np.tile(self.drift, (m, 1))
         knots = (stage, first, change)
         iterations = p.noisy_knot_iterations if self._noisy() else p.knot_iterations
-        fits = self._fit_paths(x0, drift0, u, y, age, iterations, ratio=ratio, knots=knots)
+        prune = (p.knot_prune_after, p.knot_keep) if p.knot_keep else None
+        fits = self._fit_paths(
+            path0[:, -1],
+            drift0,
+            u,
+            y,
+            age,
+            iterations,
+            ratio=ratio,
+            knots=knots,
+            prune=prune,
+            path0=path0,
+            deadline=deadline,
+        )
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
         best_ratio, won = self._ratio, False
         penalty = p.noisy_knot_penalty if self._noisy() else p.knot_penalty

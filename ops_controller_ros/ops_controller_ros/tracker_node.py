@@ -51,6 +51,23 @@ PARAMS = [
     ),
     # A rig runs in real time: the global search is spread over readings (the in-process
     # evaluation's default, 0, does it in one reading and locks a few steps sooner).
+    # A rig steps whether or not the command came: the knot test (5-15 ms) runs after the
+    # command is out and a revised command follows if it changed the estimate (the in-process
+    # evaluation, which has no clock, tests first: the same controller with instant compute).
+    ParamSpec(
+        "defer_knot_test",
+        True,
+        "true: answer a reading first and test it for a knot of the drift after",
+    ),
+    # 4 ms at 100 Hz: 6 ms let half the revised commands miss their step (measured over DDS,
+    # docs/tracker.md); about 40 % of the rig's step period.
+    ParamSpec(
+        "knot_budget_ms",
+        4.0,
+        "compute of the knot test and the fits after it per reading, ms (0: no limit)",
+        low=0.0,
+        high=1000.0,
+    ),
     ParamSpec(
         "step_budget_ms",
         4.0,
@@ -66,6 +83,8 @@ _TRACKER_FIELDS = (
     "hold_pattern",
     "detector_noise",
     "hop_every",
+    "defer_knot_test",
+    "knot_budget_ms",
     "step_budget_ms",
 )
 _MODEL_FIELDS = ("wavelength_nm", "pulse_fwhm_fs", "detector")

@@ -34,7 +34,7 @@ def controller_episodes(
 ) -> dict[str, np.ndarray]:
     """``episodes`` episodes of ``controller`` on ``env`` (an OpsEnv, or a wrapper with
     ``reset(seed=)`` and ``step_setpoints(setpoints_fs) -> StepResult``)."""
-    from ops_controller_ros.controllers import make_controller
+    from ops_controller_ros.controllers import make_controller, next_command
 
     power = np.empty((episodes, steps + 1))
     returns = np.zeros(episodes)
@@ -46,7 +46,7 @@ def controller_episodes(
         )
         power[e, 0] = info["power"]
         for t in range(steps):
-            r = env.step_setpoints(ctl.command())
+            r = env.step_setpoints(next_command(ctl))
             p = float(r.power[0])
             ctl.observe(p, r.pulse_energies[0])
             power[e, t + 1] = p
