@@ -11,7 +11,7 @@ the measurement (a machine whose cores are all taken, where a second BLAS thread
 
 Usage (after `source setup.bash`):
   python scripts/bench_tracker_compute.py [--mode extreme] [--steps 3000] [--seeds 1000]
-      [--busy 2] [--write]
+      [--busy 2] [--param defer_knot_test=true knot_budget_ms=4] [--write]
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from doc_sections import write_section
+from ops_gym_bridge.cli_args import parse_key_values
 from tracker_knots import tracker_run
 
 SECTION = "## The tracker's compute per reading (issue 20)"
@@ -62,7 +63,14 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=30, help="calls per fit timing")
     ap.add_argument("--busy", type=int, default=0, help="busy processes beside the measurement")
     ap.add_argument("--write", action="store_true", help="write docs/benchmarks.md")
+    ap.add_argument(
+        "--param",
+        nargs="*",
+        default=[],
+        help="tracker parameters KEY=VALUE (the node's: defer_knot_test=true knot_budget_ms=4)",
+    )
     args = ap.parse_args()
+    args.params = parse_key_values(args.param, "--param")
     cores = os.cpu_count() or 1
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
     try:
@@ -81,14 +89,16 @@ def measure(args, cores: int) -> list[str]:
     for threads in (1, cores):
         for seed in args.seeds:
             with threadpool_limits(limits=threads, user_api="blas"):
-                run = tracker_run(args.mode, args.steps, seed, {})
+                run = tracker_run(args.mode, args.steps, seed, args.params)
                 track_ms, knot_ms = fit_times(run["ctl"], args.repeats)
-            power, ms = run["power"], run["compute_ms"]
+            power = run["power"]
             first = int(np.argmax(power >= 0.95))
-            ms = ms[first:]
+            ms, answer, think = (run[k][first:] for k in ("compute_ms", "answer_ms", "think_ms"))
             row = (
                 f"| {threads} | {seed} | {np.median(ms):.2f} | {np.percentile(ms, 99):.1f} | "
-                f"{ms.max():.1f} | {100 * np.mean(ms > 10):.2f} | {track_ms:.2f} | {knot_ms:.1f} | "
+                f"{ms.max():.1f} | {100 * np.mean(ms > 10):.2f} | "
+                f"{np.percentile(answer, 99):.1f} | {np.percentile(think, 99):.1f} | "
+                f"{track_ms:.2f} | {knot_ms:.1f} | "
                 f"{100 * np.mean(power[first:] >= 0.95):.2f} | {os.getloadavg()[0]:.1f} |"
             )
             rows.append(row)
@@ -100,6 +110,7 @@ def write(args, cores: int, rows: list[str]) -> None:
     """Print the section (and write it into docs/benchmarks.md with ``--write``)."""
     cmd = "python scripts/bench_tracker_compute.py " + " ".join(sys.argv[1:])
     title = SECTION + (f", {args.busy} busy processes beside it" if args.busy else "")
+    title += f", tracker {' '.join(args.param)}" if args.param else ""
     text = "\n".join(
         [
             title,
@@ -107,15 +118,18 @@ def write(args, cores: int, rows: list[str]) -> None:
             f"Command: `{cmd.strip()}` ({args.mode} mode, N = 5, testing split, {args.steps} "
             f"steps per seed; machine: {platform.processor() or platform.machine()}, "
             f"{cores} cores; {args.busy} busy processes beside it). Per reading after the first "
-            "lock: `command` + `observe` of the tracker in process; a node at 100 Hz has 10 ms. "
+            "lock: `observe`, `command`, `think` and the revised command of the tracker in process "
+            "(the answer: `observe` + `command`, what a node sends before it thinks; the rest "
+            "only with `defer_knot_test`); a node at 100 Hz has 10 ms. "
             "Fit timings: median of "
             f"{args.repeats} calls on the run's last window (one tracking fit of "
             "`track_iterations`; one knot test: its hypotheses (stage x knot position x side), "
             "fitted together).",
             "",
             "| BLAS threads | seed | median ms | p99 ms | max ms | readings > 10 ms, % | "
-            "tracking fit ms | knot test ms | readings >= 0.95, % | load (1 min) |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            "answer p99 ms | think p99 ms | tracking fit ms | knot test ms | readings >= 0.95, % "
+            "| load (1 min) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
             *rows,
             "",
         ]

@@ -8,7 +8,8 @@ Two in-process runs of ``--steps`` steps per seed (N = 5, testing split, polariz
   learns the drift from its readings can hold.
 * **tracker**: the tracker (its defaults, or ``--param KEY=VALUE``), with the readings below 0.95
   counted by the steps since the last knot, the knots that caused one, the estimate's error and
-  the compute per reading (``command`` + ``observe``: a node at 100 Hz has 10 ms).
+  the compute per reading (``observe`` + ``command`` + ``think`` and the revised command, as
+  ``controllers.next_command`` runs them: a node at 100 Hz has 10 ms).
 
 Usage (after `source setup.bash`):
   python scripts/tracker_knots.py --mode extreme --steps 3000 --seeds 1000 [--param window=10]
@@ -21,7 +22,7 @@ import time
 from collections import Counter
 
 import numpy as np
-from ops_controller_ros.controllers import make_controller, next_command
+from ops_controller_ros.controllers import make_controller
 from ops_gym_bridge.cli_args import parse_key_values
 from ops_gym_bridge.continuous import lock_figures
 from ops_sim_ros.config import make_config
@@ -55,18 +56,25 @@ def tracker_run(mode: str, steps: int, seed: int, params: dict) -> dict:
     slope = noise.slope.copy()
     last_knot = -(10**9)
     power, since = np.empty(steps), np.empty(steps, dtype=int)
-    compute_ms = np.empty(steps)
+    # per reading: observe + the command after it (a node's answer), and think() + the
+    # revised command (the work after the answer; 0 unless defer_knot_test)
+    answer_ms, think_ms = np.zeros(steps + 1), np.zeros(steps + 1)
     error = np.full(steps, np.nan)
     knots = []  # (step from which the new slope acts, its change in cycles per step)
     for t in range(steps):
         t0 = time.perf_counter()
-        command = next_command(ctl)
+        command = ctl.command()
         t1 = time.perf_counter()
+        if ctl.think():
+            command = ctl.command()
+        t2 = time.perf_counter()
+        answer_ms[t] += (t1 - t0) * 1e3
+        think_ms[t] += (t2 - t1) * 1e3
         r = env.step_setpoints(command)
         power[t] = r.power[0]
-        t2 = time.perf_counter()
+        t3 = time.perf_counter()
         ctl.observe(float(r.power[0]), r.pulse_energies[0])
-        compute_ms[t] = (t1 - t0 + time.perf_counter() - t2) * 1e3
+        answer_ms[t + 1] += (time.perf_counter() - t3) * 1e3
         since[t] = t - last_knot
         change = np.abs(noise.slope[0] - slope[0]).max() / period
         if change > 1e-12:  # redrawn at the end of this step: acts from the next
@@ -82,7 +90,9 @@ def tracker_run(mode: str, steps: int, seed: int, params: dict) -> dict:
         "error": error,
         "knots": knots,
         "ctl": ctl,
-        "compute_ms": compute_ms,
+        "compute_ms": (answer_ms + think_ms)[1:],  # the reading's observe, then command/think
+        "answer_ms": answer_ms[1:],
+        "think_ms": think_ms[1:],
     }
 
 
