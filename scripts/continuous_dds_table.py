@@ -1,8 +1,8 @@
 """The continuous-operation table over DDS beside the in-process one (issue 20).
 
 Reads the JSON files `scripts/bench_continuous_dds.py --out` wrote (default
-docs/results/continuous_dds/CELL.json, CELL = tracker_MODE_600s, model_n5_MODE_600s or
-spgd_MODE_300s) and the in-process `evaluate --continuous --out` results of the same controller
+docs/results/continuous_dds/CELL.json, CELL = tracker_MODE_600s, model_NAME_600s (NAME: the
+folder under models/) or spgd_MODE_300s) and the in-process `evaluate --continuous --out` results of the same controller
 and mode (docs/results/continuous/CELL/evaluation.json, the longest run stored), and prints a
 markdown table: readings >= 0.95 after the first lock, lock losses (< 0.8), the longest, the
 worst reading after the lock, the difference of the locked fractions and the file (a suffix
@@ -21,14 +21,20 @@ import re
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-CELL = re.compile(r"^(tracker|spgd|model_n5)_(easy|medium|hard|extreme)_(\d+)s(_[\w-]+)?$")
+# CELL: tracker_MODE, spgd_MODE or model_NAME (NAME: the folder under models/, e.g. n5_hard_long;
+# the mode is the run's), then the seconds and an optional suffix (nice, commit)
+CELL = re.compile(r"^(tracker|spgd|model)_([a-z0-9_]+?)_(\d+)s(_[\w-]+)?$")
 MODES = ("easy", "medium", "hard", "extreme")
 
 
 def inprocess_figures(root: Path, kind: str, mode: str) -> tuple[str, dict] | None:
-    """The longest stored in-process run of ``kind`` in ``mode``: (its folder, overall)."""
+    """The longest stored in-process run of ``kind`` (tracker, spgd: in ``mode``; a model:
+    model_NAME) in ``mode``: (its folder, overall)."""
     best = None
-    for path in sorted(root.glob(f"{kind}_{mode}*/evaluation.json")):
+    prefix = kind if kind.startswith("model_") else f"{kind}_{mode}"
+    for path in sorted(root.glob(f"{prefix}*/evaluation.json")):
+        if kind.startswith("model_") and not re.fullmatch(rf"{prefix}(_\d+k)?", path.parent.name):
+            continue  # another model whose name starts the same (n5_hard, n5_hard_long)
         data = json.loads(path.read_text())
         steps = int(data.get("continuous_steps", 0)) * len(data.get("seeds", []))
         overall = data["splits"]["test"]["overall"]
@@ -50,9 +56,12 @@ def main() -> int:
         match = CELL.match(path.stem)
         if not match:
             continue
-        kind, mode, seconds, _ = match.groups()
-        rows.append((("tracker", "model_n5", "spgd").index(kind), MODES.index(mode), kind, mode,
-                     int(seconds), json.loads(path.read_text()), path.name))  # fmt: skip
+        kind, name, seconds, _ = match.groups()
+        data = json.loads(path.read_text())
+        mode = data["args"]["mode"]
+        cell = f"{kind}_{name}" if kind == "model" else kind  # the in-process run's prefix
+        rows.append((("tracker", "model", "spgd").index(kind), MODES.index(mode), cell, mode,
+                     int(seconds), data, path.name))  # fmt: skip
     print(
         "| controller | mode | DDS: time, readings | locked after first lock | losses | longest | "
         "worst after lock | nice | load at the end | in process (run) | in process locked | "
@@ -64,7 +73,7 @@ def main() -> int:
     ):
         o = data["overall"]
         readings = sum(int(r.get("readings", 0)) for r in data.get("per_seed", []))
-        name = {"model_n5": f"models/n5_{mode}", "spgd": "SPGD-PID"}.get(kind, kind)
+        name = "SPGD-PID" if kind == "spgd" else kind.replace("model_", "models/")
         load = data.get("load_average_end", ["?"])[0]  # 1-min load average at the end
         ref = inprocess_figures(Path(args.inprocess), kind, mode)
         ref_cells = ["—", "—", "—"]

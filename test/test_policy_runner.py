@@ -185,3 +185,26 @@ def test_authors_observation_model_runs_on_the_oracle_topic(procs, observer, tmp
     runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
     wait_for_moved_setpoints(observer)
     assert_no_traceback(runner.output)
+
+
+def test_switching_model_hands_over_to_its_holder_over_dds(procs, observer, tmp_path):
+    """A switching model (scripts/make_switch_model.py; here the shipped hard models: n5_hard
+    acquires, n5_hard_long holds) in the policy node: both parts load, the log says which acts,
+    and once the readings stay >= 0.95 the holder takes over."""
+    from ops_controller_ros.policy_switch import write_switch_model
+
+    model = write_switch_model(
+        tmp_path / "switch", REPO / "models" / "n5_hard_long", REPO / "models" / "n5_hard"
+    )
+    procs.ros2(
+        "run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=5", "-p", "mode:=hard",
+        "-p", "seed:=12", name="sim",
+    )  # fmt: skip
+    runner = procs.ros2(
+        "run", "ops_controller_ros", "policy", "--ros-args", "-p", f"model:={model}",
+        "-p", "log_period_s:=0.2", name="policy",
+    )  # fmt: skip
+    runner.wait_for(r"switching model: .*acquire acquires", timeout=120)
+    runner.wait_for(r"step \d+: P_N/P_max = [\d.]+ \(acquiring policy acts", timeout=30)
+    runner.wait_for(r"\(holding policy acts; [1-9]\d* hand-overs\)", timeout=90)
+    assert_no_traceback(runner.output)

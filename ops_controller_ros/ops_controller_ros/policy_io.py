@@ -341,12 +341,13 @@ class PolicyRunner:
     action returned for the reading before. The ``ops_policy`` node runs one.
     """
 
-    def __init__(self, loaded: LoadedPolicy) -> None:
+    def __init__(self, loaded: LoadedPolicy, num_envs: int | None = None) -> None:
         from ops_sim_ros.observation import ObservationBuilder
 
         self.policy = loaded
         self.spec = observation_spec_of(loaded.metadata, source=str(loaded.path))
-        self._builder = ObservationBuilder(self.spec)
+        # num_envs: readings of that many rigs at once, (B, ...) arrays in and out (evaluation)
+        self._builder = ObservationBuilder(self.spec, num_envs)
         self._last_action: np.ndarray | None = None
         self.last_observation: np.ndarray | None = None  # what the network saw last
 
@@ -364,12 +365,20 @@ class PolicyRunner:
         )
 
     def act(self, pulse_energies, power, setpoints_fs, applied_fs=None) -> np.ndarray:
-        """The action (float32, [-1, 1]^N) for a reading; it is remembered for the next one."""
+        """The action (float32, [-1, 1]^N; (B, N) for a batch) for a reading; it is remembered
+        for the next one."""
         obs = self.observe(pulse_energies, power, setpoints_fs, applied_fs)
         self.last_observation = obs
-        action = np.asarray(self.policy.predict(obs), dtype=np.float32).reshape(-1)
+        action = np.asarray(self.policy.predict(obs), dtype=np.float32)
+        action = action.reshape(-1) if self._builder.single else action.reshape(obs.shape[0], -1)
         self._last_action = action
         return action
+
+    def took(self, action) -> None:
+        """The action actually applied after the last reading, if not the one :meth:`act`
+        returned (another policy chose it: :mod:`ops_controller_ros.policy_switch`); the next
+        observation's memory holds it."""
+        self._last_action = np.asarray(action, dtype=np.float32)
 
 
 def check_stage(loaded: LoadedPolicy, sim_stage: int) -> None:

@@ -6,7 +6,9 @@ in-process environment (``ops_sim_ros.observation.ObservationBuilder``, through
 ``policy_io.PolicyRunner``; a model trained with memory gets its last observations and actions,
 the history starting at the node's first reading) from the simulator's trace, power and
 set-points, and publishes new set-points: current set-points + action * max step (the only action
-type ``ops_controller_ros.policy_io`` loads is "increment").
+type ``ops_controller_ros.policy_io`` loads is "increment"). A switching model (one policy
+acquires, another holds: ``ops_controller_ros.policy_switch``) runs both on every reading and
+logs which one acts.
 
 A step's readings are used only once the set-points they report equal the last command (the
 simulator publishes ``ops/delays`` first), as in the SPGD node. A model trained for another stage
@@ -43,13 +45,8 @@ from std_msgs.msg import Float32, Float32MultiArray
 
 from . import controller_params, loop_status
 from .command_tracker import CommandTracker
-from .policy_io import (
-    PolicyLoadError,
-    PolicyRunner,
-    check_observation,
-    check_stage,
-    load_policy,
-)
+from .policy_io import PolicyLoadError, check_observation, check_stage, load_policy
+from .policy_switch import SwitchingRunner, make_runner
 
 PARAMS = [
     ParamSpec("model", "", "trained model: the training output DIR or DIR/model.zip"),
@@ -78,7 +75,7 @@ class PolicyNode(Node):
             )
         try:
             self._policy = load_policy(v["model"])
-            self._runner = PolicyRunner(self._policy)
+            self._runner = make_runner(self._policy)
             check_observation(self._policy.metadata, v["observation"], "-p observation:=")
         except PolicyLoadError as exc:
             raise ParameterError(f"model: {exc}") from None
@@ -106,6 +103,11 @@ class PolicyNode(Node):
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
         self.create_timer(0.01, self._watchdog)  # re-sends after the measured round trip
         self.create_timer(v["log_period_s"], self._log_progress)
+        if isinstance(self._runner, SwitchingRunner):
+            self.get_logger().info(
+                f"switching model: {self._runner.acquire.policy.path} acquires, the model in "
+                f"{self._policy.path} holds ({self._runner.params})"
+            )
         self.get_logger().info(
             f"loaded {self._policy.algo.upper()} model for stage {self._policy.stage} "
             f"({self._policy.mode} mode, observation {self._spec.describe()}) from "
@@ -203,7 +205,11 @@ class PolicyNode(Node):
 
     def _log_progress(self):
         if self._steps:
-            self.get_logger().info(f"step {self._steps}: P_N/P_max = {self._last_power:.4f}")
+            part = ""
+            if isinstance(self._runner, SwitchingRunner):
+                acting = "holding" if self._runner.holding else "acquiring"
+                part = f" ({acting} policy acts; {self._runner.switches} hand-overs)"
+            self.get_logger().info(f"step {self._steps}: P_N/P_max = {self._last_power:.4f}{part}")
 
 
 def main(args=None):

@@ -36,7 +36,7 @@ from ops_sim_ros.threads import limit_blas_threads
 from . import cli_args, continuous
 from .envs import EPISODE_STEPS
 from .recording import new_bag_path
-from .rollouts import rollout_controller, rollout_policy
+from .rollouts import rollout_controller, rollout_policy, rollout_runner
 
 
 class EvaluationError(RuntimeError):
@@ -170,6 +170,10 @@ class Subject:
             return rollout_controller(
                 self.controller, self.controller_params, nominal, sim, episodes, steps, seed
             )
+        from ops_controller_ros.policy_switch import is_switching, make_runner
+
+        if is_switching(self.policy):  # two policies, each with its own observation
+            return rollout_runner(make_runner(self.policy, episodes), sim, episodes, steps, seed)
         options = self.observation_options()
         return rollout_policy(self.policy.predict, sim, episodes, steps, seed, options)
 
@@ -272,10 +276,12 @@ def summarize(per_seed: list[dict[str, np.ndarray]]) -> dict[str, Any]:
 def load_for_evaluation(model_path: str, stage: int | None):
     """(LoadedPolicy, stage) or EvaluationError for a model that cannot run on ``stage``."""
     from ops_controller_ros.policy_io import PolicyLoadError, load_policy, observation_spec_of
+    from ops_controller_ros.policy_switch import make_runner
     from ops_sim_ros.observation import ObservationSpec
 
     try:
         loaded = load_policy(model_path)
+        make_runner(loaded)  # a switching model's second policy: loaded and checked now
     except PolicyLoadError as exc:
         raise EvaluationError(str(exc)) from None
     stage = loaded.stage if stage is None else stage

@@ -4,7 +4,9 @@
   (SPGD-PID, the tracker, ...) exactly as its node drives the simulator: absolute set-points, one
   reading (P_N / P_max and the detected slot energies) per command. Used by ``evaluate
   --controller``, ``evaluate --record`` and ``scripts/spgd_baseline.py``.
-* :func:`rollout_policy` runs a learned policy's batched ``predict`` on a vector env.
+* :func:`rollout_policy` runs a learned policy's batched ``predict`` on a vector env;
+  :func:`rollout_runner` the same episodes with a runner that reads the readings itself (a
+  switching model, :mod:`ops_controller_ros.policy_switch`).
 * :func:`policy_episodes` runs a batched ``predict`` on the very episodes of
   :func:`controller_episodes` (one env per episode, reset with :func:`episode_seed`: the same
   initial delay errors and the same noise draws), so agents and controllers compare like with
@@ -99,6 +101,35 @@ def rollout_policy(
         returns = np.zeros(episodes)
         for t in range(steps):
             obs, rewards, _, _, info = env.step(predict(obs))
+            returns += rewards
+            final = info.get("final_info") if t == steps - 1 else None
+            source = final if final is not None and "power" in final else info
+            power[:, t + 1] = np.asarray(source["power"], dtype=np.float64)
+        return {"power": power, "returns": returns}
+    finally:
+        env.close()
+
+
+def rollout_runner(
+    runner, sim_config, episodes: int, steps: int, seed: int
+) -> dict[str, np.ndarray]:
+    """:func:`rollout_policy` for a runner that builds its own observations from each reading
+    (``runner.act(pulse_energies, power, setpoints_fs, applied_fs)`` on (B, ...) arrays, e.g.
+    a :class:`~ops_controller_ros.policy_switch.SwitchingRunner` of ``episodes`` rigs): the
+    same episodes as :func:`rollout_policy` for the same ``seed``."""
+    from ops_sim_ros.vec_env import OpsVectorEnv
+
+    env = OpsVectorEnv.from_config(sim_config, num_envs=episodes, max_episode_steps=steps)
+    try:
+        _, info = env.reset(seed=seed)
+        runner.restart()
+        power = np.empty((episodes, steps + 1))
+        power[:, 0] = np.asarray(info["power"], dtype=np.float64)
+        returns = np.zeros(episodes)
+        for t in range(steps):
+            r = env.sim.last
+            actions = runner.act(r.pulse_energies, r.power, r.setpoints_fs, r.applied_fs)
+            _, rewards, _, _, info = env.step(actions)
             returns += rewards
             final = info.get("final_info") if t == steps - 1 else None
             source = final if final is not None and "power" in final else info

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -88,3 +89,26 @@ def test_evaluate_continuous_tracker_holds_hard_mode(tmp_path):
 def test_evaluate_continuous_refuses_record(tmp_path):
     argv = ["--controller", "tracker", "--continuous", "10", "--record", str(tmp_path / "bag")]
     assert evaluate.run([*argv, "--out", str(tmp_path / "o"), "--quiet"]) == 2
+
+
+def test_a_switching_model_of_one_policy_runs_the_plain_models_episodes(tmp_path):
+    """A switching model whose two parts are the same shipped policy is that policy: evaluated
+    through the runner path (rollouts.rollout_runner, each reading observed by the runner) it
+    gives the episodes of the plain model's batched path (rollout_policy), reading for reading.
+    And `evaluate --continuous` runs a switching model."""
+    from ops_controller_ros.policy_switch import write_switch_model
+
+    shipped = Path(__file__).resolve().parents[2] / "models" / "n5_medium"
+    same = write_switch_model(tmp_path / "same", shipped, shipped)
+    finals = []
+    for model, out in ((shipped, tmp_path / "plain"), (same, tmp_path / "switch")):
+        argv = [str(model), "--splits", "test", "--seeds", "7", "--episodes", "6"]
+        assert evaluate.run([*argv, "--out", str(out), "--no-plot", "--quiet"]) == 0
+        result = json.loads((out / "evaluation.json").read_text())
+        finals.append(result["splits"]["test"]["final_power_per_episode"])
+    np.testing.assert_allclose(finals[0], finals[1], atol=1e-5)
+    out = tmp_path / "cont"
+    argv = [str(same), "--splits", "test", "--seeds", "1004", "--continuous", "400"]
+    assert evaluate.run([*argv, "--out", str(out), "--no-plot", "--quiet"]) == 0
+    run = json.loads((out / "evaluation.json").read_text())["splits"]["test"]["per_seed"][0]
+    assert run["readings"] == 401
