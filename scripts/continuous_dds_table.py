@@ -2,11 +2,11 @@
 
 Reads the JSON files `scripts/bench_continuous_dds.py --out` wrote (default
 docs/results/continuous_dds/CELL.json, CELL = tracker_MODE_600s, model_NAME_600s (NAME: the
-folder under models/) or spgd_MODE_300s) and the in-process `evaluate --continuous --out` results of the same controller
-and mode (docs/results/continuous/CELL/evaluation.json, the longest run stored), and prints a
-markdown table: readings >= 0.95 after the first lock, lock losses (< 0.8), the longest, the
-worst reading after the lock, the difference of the locked fractions and the file (a suffix
-names the commit of an older run: CELL_<commit>.json).
+folder under models/) or spgd_MODE_300s) and the in-process `evaluate --continuous --out`
+results of the same controller and mode (docs/results/continuous/CELL/evaluation.json, the
+longest run stored), and prints a markdown table: readings >= 0.95 after the first lock, lock
+losses (< 0.8), the longest, the worst reading after the lock, the difference of the locked
+fractions and the file (a suffix names the commit of an older run: CELL_<commit>.json).
 
 Usage (after `source setup.bash`):
   python scripts/continuous_dds_table.py [--dds docs/results/continuous_dds]
