@@ -39,6 +39,12 @@ def main() -> int:
         help="the acquiring policy's set-points observed against a whole-cycle reference "
         "(cycles, >= 0.5; default: as it was trained)",
     )
+    ap.add_argument(
+        "--acquire-patience",
+        type=int,
+        default=defaults.acquire_patience,
+        help="readings of search before the holding policy searches in turn (0: never)",
+    )
     ap.add_argument("--note", default="", help="a line kept in the metadata")
     args = ap.parse_args()
     try:
@@ -48,6 +54,7 @@ def main() -> int:
             args.release_power,
             args.release_readings,
             args.acquire_setpoint_window,
+            args.acquire_patience,
         )
         out = write_switch_model(args.out, args.hold, args.acquire, params, args.note)
     except (ValueError, PolicyLoadError) as exc:

@@ -207,8 +207,11 @@ class PolicyNode(Node):
         if self._steps:
             part = ""
             if isinstance(self._runner, SwitchingRunner):
-                acting = "holding" if self._runner.holding else "acquiring"
-                part = f" ({acting} policy acts; {self._runner.switches} hand-overs)"
+                r = self._runner
+                acting = "holding policy acts" if r.holding else "acquiring policy acts"
+                if r.holder_acts and not r.holding:
+                    acting = "holding policy searches in turn"
+                part = f" ({acting}; {r.switches} hand-overs)"
             self.get_logger().info(f"step {self._steps}: P_N/P_max = {self._last_power:.4f}{part}")
 
 

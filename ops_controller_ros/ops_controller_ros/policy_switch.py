@@ -64,6 +64,11 @@ class SwitchParams:
     # hours of drift they are cycles away, and it no longer finds the stack (docs/results.md,
     # "Long runs learned"); re-centred, they look like its training episodes again.
     acquire_setpoint_window: float | None = None
+    # 0: off. n > 0: a search that has not found the stack in n readings is handed to the
+    # holding policy for the next n, then back, in turn: the two policies' failed acquisitions
+    # are different episodes (measured on hard mode, docs/results.md), so an ensemble of the two
+    # searches rescues the tail of either.
+    acquire_patience: int = 0
 
     def __post_init__(self) -> None:
         w = self.acquire_setpoint_window
@@ -73,6 +78,7 @@ class SwitchParams:
             ("lock_readings", self.lock_readings >= 1, ">= 1"),
             ("release_readings", self.release_readings >= 1, ">= 1"),
             ("acquire_setpoint_window", w is None or w == 0 or w >= 0.5, "None, 0 or >= 0.5"),
+            ("acquire_patience", self.acquire_patience >= 0, ">= 0"),
         )
         for name, ok, allowed in checks:
             value = getattr(self, name)
@@ -118,10 +124,19 @@ class SwitchingRunner:
         self._holding = np.zeros(self._n, dtype=bool)
         self._high = np.zeros(self._n, dtype=int)
         self._low = np.zeros(self._n, dtype=int)
+        self._searched = np.zeros(self._n, dtype=int)  # readings since the search began
+        self._hold_acts = np.zeros(self._n, dtype=bool)
 
     @property
     def holding(self):
+        """Whether the lock is held (the holding policy acts since the readings say locked)."""
         return bool(self._holding[0]) if self._single else self._holding.copy()
+
+    @property
+    def holder_acts(self):
+        """Whether the holding policy's action was applied last (holding, or its turn of an
+        ``acquire_patience`` search)."""
+        return bool(self._hold_acts[0]) if self._single else self._hold_acts.copy()
 
     def act(self, pulse_energies, power, setpoints_fs, applied_fs=None) -> np.ndarray:
         p = self.params
@@ -133,9 +148,14 @@ class SwitchingRunner:
         )
         self.switches += int(np.count_nonzero(holding != self._holding))
         self._holding = holding
+        self._searched = np.where(holding, 0, self._searched + 1)
+        hold_acts = holding.copy()
+        if p.acquire_patience:
+            hold_acts |= ((self._searched - 1) // p.acquire_patience) % 2 == 1
+        self._hold_acts = hold_acts
         held = self.hold.act(pulse_energies, power, setpoints_fs, applied_fs)
         found = self.acquire.act(pulse_energies, power, setpoints_fs, applied_fs)
-        rows = holding[0] if self._single else holding[:, None]
+        rows = hold_acts[0] if self._single else hold_acts[:, None]
         action = np.where(rows, held, found).astype(np.float32)
         self.hold.took(action)
         self.acquire.took(action)
