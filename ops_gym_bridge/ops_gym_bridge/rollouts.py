@@ -86,6 +86,30 @@ def rollout_policy(
     """``episodes`` parallel episodes on ``sim_config`` with a batched ``predict(obs)``;
     ``observation_options``: the model's observation choices (``ObservationSpec.options()``,
     memory included; None: the default observation)."""
+    return _vector_episodes(
+        lambda obs, _: predict(obs), sim_config, episodes, steps, seed, observation_options
+    )
+
+
+def rollout_runner(
+    runner, sim_config, episodes: int, steps: int, seed: int
+) -> dict[str, np.ndarray]:
+    """:func:`rollout_policy` for a runner that builds its own observations from each reading
+    (``runner.act(pulse_energies, power, setpoints_fs, applied_fs)`` on (B, ...) arrays, e.g.
+    a :class:`~ops_controller_ros.policy_switch.SwitchingRunner` of ``episodes`` rigs): the
+    same episodes as :func:`rollout_policy` for the same ``seed``."""
+    runner.restart()
+
+    def act(_, r):
+        return runner.act(r.pulse_energies, r.power, r.setpoints_fs, r.applied_fs)
+
+    return _vector_episodes(act, sim_config, episodes, steps, seed)
+
+
+def _vector_episodes(
+    choose, sim_config, episodes: int, steps: int, seed: int, observation_options=None
+) -> dict[str, np.ndarray]:
+    """The loop of both: ``choose(obs, last StepResult) -> actions`` on a vector env."""
     from ops_sim_ros.vec_env import OpsVectorEnv
 
     env = OpsVectorEnv.from_config(
@@ -100,36 +124,7 @@ def rollout_policy(
         power[:, 0] = np.asarray(info["power"], dtype=np.float64)
         returns = np.zeros(episodes)
         for t in range(steps):
-            obs, rewards, _, _, info = env.step(predict(obs))
-            returns += rewards
-            final = info.get("final_info") if t == steps - 1 else None
-            source = final if final is not None and "power" in final else info
-            power[:, t + 1] = np.asarray(source["power"], dtype=np.float64)
-        return {"power": power, "returns": returns}
-    finally:
-        env.close()
-
-
-def rollout_runner(
-    runner, sim_config, episodes: int, steps: int, seed: int
-) -> dict[str, np.ndarray]:
-    """:func:`rollout_policy` for a runner that builds its own observations from each reading
-    (``runner.act(pulse_energies, power, setpoints_fs, applied_fs)`` on (B, ...) arrays, e.g.
-    a :class:`~ops_controller_ros.policy_switch.SwitchingRunner` of ``episodes`` rigs): the
-    same episodes as :func:`rollout_policy` for the same ``seed``."""
-    from ops_sim_ros.vec_env import OpsVectorEnv
-
-    env = OpsVectorEnv.from_config(sim_config, num_envs=episodes, max_episode_steps=steps)
-    try:
-        _, info = env.reset(seed=seed)
-        runner.restart()
-        power = np.empty((episodes, steps + 1))
-        power[:, 0] = np.asarray(info["power"], dtype=np.float64)
-        returns = np.zeros(episodes)
-        for t in range(steps):
-            r = env.sim.last
-            actions = runner.act(r.pulse_energies, r.power, r.setpoints_fs, r.applied_fs)
-            _, rewards, _, _, info = env.step(actions)
+            obs, rewards, _, _, info = env.step(choose(obs, env.sim.last))
             returns += rewards
             final = info.get("final_info") if t == steps - 1 else None
             source = final if final is not None and "power" in final else info
