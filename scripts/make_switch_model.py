@@ -45,6 +45,9 @@ def main() -> int:
         default=defaults.acquire_patience,
         help="readings of search before the holding policy searches in turn (0: never)",
     )
+    ap.add_argument(
+        "--mode", default=None, help="the mode the model is for (default: the holder's)"
+    )
     ap.add_argument("--note", default="", help="a line kept in the metadata")
     args = ap.parse_args()
     try:
@@ -56,7 +59,7 @@ def main() -> int:
             args.acquire_setpoint_window,
             args.acquire_patience,
         )
-        out = write_switch_model(args.out, args.hold, args.acquire, params, args.note)
+        out = write_switch_model(args.out, args.hold, args.acquire, params, args.note, args.mode)
     except (ValueError, PolicyLoadError) as exc:
         print(f"make_switch_model: {exc}", file=sys.stderr)
         return 2

@@ -226,11 +226,17 @@ def is_switching(loaded: LoadedPolicy) -> bool:
 
 
 def write_switch_model(
-    out, hold_dir, acquire_dir, params: SwitchParams | None = None, note: str = ""
+    out,
+    hold_dir,
+    acquire_dir,
+    params: SwitchParams | None = None,
+    note: str = "",
+    mode: str | None = None,
 ) -> Path:
     """Write a switching model to ``out``: ``hold_dir``'s model and metadata (plus a
     ``switch`` entry) and ``acquire_dir``'s model directory as ``out/acquire``. Both are loaded
-    and checked first; returns ``out``."""
+    and checked first; returns ``out``. ``mode``: the mode the model is for (what ``evaluate``
+    runs by default; default: the holding policy's training mode, kept in ``config``)."""
     params = params or SwitchParams()
     hold, acquire = load_policy(hold_dir), load_policy(acquire_dir)
     check_pair(hold, acquire)
@@ -242,6 +248,12 @@ def write_switch_model(
     shutil.copy2(acquire.path / MODEL_FILE, target / MODEL_FILE)
     save_metadata(target, read_metadata(acquire.path))
     metadata = read_metadata(hold.path)
+    if mode is not None:
+        from ops_sim_ros.config import MODES
+
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)} (got {mode!r})")
+        metadata["mode"] = mode
     metadata[SWITCH_KEY] = {
         "acquire_model": ACQUIRE_DIR,
         **asdict(params),
