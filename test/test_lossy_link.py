@@ -6,8 +6,9 @@ pace (a lost command or reading is re-sent after a few measured round trips, not
 ``timeout_s``: at 1 s per loss it managed a few iterations per second, under a twentieth; with
 re-sends it keeps about two thirds on an idle machine and a third on a busy one) and holds its
 lock; after a 3 s outage it steps again within seconds, and nothing exits.
-The heavy schedules (5 / 20 % loss for minutes, 30 s outages, load, three controllers) are in
-scripts/bench_faults.py. Needs root and `ip`; skipped with the reason otherwise.
+The tracker holds hard mode through 20 % loss (issue 34: it fell to 0.05 and no test sent a
+lost packet). The heavy schedules (5 / 20 % loss for minutes, 30 s outages, load, three
+controllers) are in scripts/bench_faults.py. Needs root and `ip`; skipped with the reason otherwise.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import re
 import time
 
+import numpy as np
 import pytest
 from ros_testing import (
     NetnsUnavailable,
@@ -22,6 +24,7 @@ from ros_testing import (
     assert_no_traceback,
     executable,
     netns_unavailable_reason,
+    ros2_command,
     sim_command,
 )
 
@@ -101,5 +104,40 @@ def test_spgd_keeps_its_lock_through_loss_and_comes_back_after_an_outage(hosts, 
     )
     assert time.monotonic() - back < 10.0
     for proc in (sim, spgd):
+        assert proc.popen.poll() is None
+        assert_no_traceback(proc.output)
+
+
+def _powers(proc) -> list[float]:
+    """Every ``ops/power`` reading ``ros2 topic echo`` printed so far."""
+    return [float(v) for v in re.findall(r"^data: ([-\d.e]+)$", proc.output, re.M)]
+
+
+def test_the_tracker_holds_hard_mode_through_20_percent_loss(hosts, procs):
+    """Issue 34: at 20 % loss each way the tracker's share of readings >= 0.95 fell to 0.05
+    (a lost command stalled the loop for 50-600 ms behind Fast DDS's in-order repair, and its
+    readings were paired with other steps' traces); after the fix about 1.0 on an idle machine.
+    Counted on the simulator's side (host A, no loss there), after 5 s on the lossy link."""
+    env = hosts.env()
+    hosts.set()
+    hosts.relay.wait_for(r"loss 0\.000 delay 0\.0 ms up", timeout=10)
+    sim = hosts.a.start(
+        procs, sim_command("stage:=5", "mode:=hard", "seed:=23", "rate_hz:=100.0"), env=env
+    )
+    sim.wait_for("stage=5 mode=hard", timeout=60)
+    echo = hosts.a.start(procs, [*ros2_command(), "topic", "echo", "/ops/power"], env=env)
+    args = [*executable("ops_controller_ros", "tracker"), "--ros-args", "-p", "seed:=5"]
+    tracker = hosts.b.start(procs, args, name="tracker", env=env)
+    tracker.wait_for(r"loop status: \w+ -> locked", timeout=90)
+
+    hosts.set(loss=0.20)
+    hosts.relay.wait_for(r"loss 0\.200 delay 0\.0 ms up", timeout=10)
+    start = len(_powers(echo))
+    _wait(lambda: len(_powers(echo)) >= start + 2000, 60, "20 s of readings", tracker, sim, echo)
+    lossy = np.array(_powers(echo)[start + 500 :])  # from 5 s into the loss on
+    held = float(np.mean(lossy >= 0.95))
+    assert held >= 0.6, (held, tracker.output[-3000:])
+    hosts.set()
+    for proc in (sim, tracker):
         assert proc.popen.poll() is None
         assert_no_traceback(proc.output)

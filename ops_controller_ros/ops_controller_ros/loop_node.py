@@ -30,6 +30,7 @@ from ops_sim_ros.ros_interface import (
     QOS_STATE,
     TOPIC_DELAY_CMD,
     TOPIC_DELAYS,
+    TOPIC_DELAYS_ACTUAL,
     TOPIC_INTENSITY,
     TOPIC_POWER,
     MessageGuard,
@@ -43,7 +44,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
 from . import controller_params, loop_status
-from .command_tracker import CommandTracker, steps_between
+from .command_tracker import CommandTracker, StepPairing, sequence_number, steps_between
 
 LOOP_PARAMS = [
     ParamSpec(
@@ -80,6 +81,10 @@ class ControllerLoopNode(Node):
         self.ctrl = None
         self.readings = 0
         self._commands = CommandTracker(v["timeout_s"])
+        self._pairing = StepPairing()
+        # Sequence number of the first step seen on the pending command's set-points: a reading
+        # of that step or a later one is the command's (docs/interfaces.md, "Pairing").
+        self._command_step = None
         self._guard = MessageGuard(self)
         self._status = loop_status.StatusReporter(self, v)
         self._trace = None  # (flat trace, samples per slot) of the latest ops/intensity
@@ -99,6 +104,7 @@ class ControllerLoopNode(Node):
         self.create_subscription(
             Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS
         )
+        self._applied_delays = False  # see use_applied_delays
         self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
         # Re-sends are due a few sample periods after a command (CommandTracker.resend_after).
@@ -118,6 +124,15 @@ class ControllerLoopNode(Node):
                 self._commands.timeout_s = float(p.value)
         return SetParametersResult(successful=True)
 
+    def use_applied_delays(self) -> None:
+        """The controller also observes the simulator's applied delays of each reading's own
+        step (``ops/delays_actual``, an oracle no rig has: the authors' observation set), as
+        ``observe(..., applied=)``; a reading waits for them."""
+        self._applied_delays = True
+        self.create_subscription(
+            Float32MultiArray, TOPIC_DELAYS_ACTUAL, self._on_actual, QOS_READINGS
+        )
+
     # ------------------------------------------------------------------ subclass hooks
     def build_controller(self, delays: np.ndarray, samples_per_slot: int):
         """The controller for a simulator with these set-points (its stage) and trace layout,
@@ -128,9 +143,15 @@ class ControllerLoopNode(Node):
         """The start of the progress log line (before ``: P_N/P_max = ...``)."""
         return f"reading {self.readings}"
 
+    def progress_note(self) -> str:
+        """What the progress log line says after the power (e.g. which policy acts)."""
+        return ""
+
     # ------------------------------------------------------------------ loop
     def _send(self):
         command = self._commands.sent(self.ctrl.command(), time.monotonic())
+        if not self._commands.resent:
+            self._command_step = None
         self._pub_cmd.publish(float_array_msg(command))
 
     def _start(self):
@@ -158,41 +179,62 @@ class ControllerLoopNode(Node):
             return False
         return True
 
-    def _on_delays(self, msg: Float32MultiArray):
+    def _on_delays(self, msg: Float32MultiArray, info):
         delays = self._guard.take(TOPIC_DELAYS, delays_from_msg, msg)
-        if delays is None:
+        seq = sequence_number(info)
+        if delays is None or not self._pairing.take("delays", seq):
             return
         self._delays = delays
         if self.ctrl is None or self.ctrl.stage != delays.size:
             self._start_if_found()
             return
         self._commands.on_setpoints(delays, now=time.monotonic())
+        if seq is not None and self._commands.is_pending(delays):
+            first = self._command_step
+            self._command_step = seq if first is None else min(first, seq)
 
-    def _on_intensity(self, msg: Float32MultiArray):
+    def _on_intensity(self, msg: Float32MultiArray, info):
         trace = self._guard.take(TOPIC_INTENSITY, trace_from_msg, msg)
-        if trace is None:
+        if trace is None or not self._pairing.take("trace", sequence_number(info), trace):
             return
         self._trace = trace
         if self.ctrl is None or self.ctrl.stage != self._delays.size:
             self._start_if_found()
+
+    def _on_actual(self, msg: Float32MultiArray, info):
+        actual = self._guard.take(TOPIC_DELAYS_ACTUAL, delays_from_msg, msg)
+        if actual is None:
+            return
+        if self._delays is not None and actual.size != self._delays.size:
+            self._guard.drop(
+                TOPIC_DELAYS_ACTUAL,
+                f"{actual.size} delays; the set-points have {self._delays.size}",
+            )
+            return
+        self._pairing.take("actual", sequence_number(info), actual)
 
     def _on_power(self, msg: Float32, info):
         # Two positional parameters and no default: rclpy passes the MessageInfo only to a
         # callback that cannot be called with the message alone (with ``info=None`` it never
         # did, so the steps between readings were always taken as 1 over DDS).
         power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
-        if power is None or self.ctrl is None or not self._commands.matched:
+        seq = sequence_number(info)
+        self._pairing.on_power(seq)
+        if power is None or self.ctrl is None or not self._is_reading(seq):
             return
-        trace, samples = self._trace
+        trace, samples = self._pairing.kept_for("trace", seq)
         energies = pulse_energies_from_trace(trace, samples)
         if energies.size != 2**self.ctrl.stage - 1:
             return  # a trace of another stage (the simulator is restarting)
         # Steps of a free-running simulator that ran before our command came (docs/interfaces.md)
-        seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
         steps = steps_between(self._last_power_seq, seq)
         self._last_power_seq = seq
         self.late_steps += steps - 1
-        self.ctrl.observe(power, energies, steps=steps)
+        if self._applied_delays:
+            actual = self._pairing.kept_for("actual", seq)
+            self.ctrl.observe(power, energies, steps=steps, applied=actual)
+        else:
+            self.ctrl.observe(power, energies, steps=steps)
         self._commands.answered()
         self.readings += 1
         now = time.monotonic()
@@ -202,6 +244,20 @@ class ControllerLoopNode(Node):
             self._next_allowed = now + self._min_period
             self._send()
         self._think()
+
+    def _is_reading(self, seq) -> bool:
+        """Whether the power message numbered ``seq`` is a reading of the pending command: its
+        step is not before the first step seen on the command's set-points, and its own trace
+        came (issue 34). Without sequence numbers: the latest set-points equal the command."""
+        if seq is None:
+            return self._commands.matched
+        first = self._command_step
+        if self._commands.pending is None or first is None:
+            return False
+        if self._pairing.step_of(seq, "delays") < first:
+            return False
+        kept = ("trace", "actual") if self._applied_delays else ("trace",)
+        return all(self._pairing.kept_for(t, seq) is not None for t in kept)
 
     def _think(self):
         """The controller's work that can wait until the command is out (``think()``, see
@@ -247,4 +303,5 @@ class ControllerLoopNode(Node):
             return
         late = f" ({self.late_steps} simulator steps before a command came)" * bool(self.late_steps)
         late += f" ({self.revised_commands} commands revised)" * bool(self.revised_commands)
-        self.get_logger().info(f"{self.progress()}: P_N/P_max = {self.ctrl.last_power:.4f}{late}")
+        power = f"P_N/P_max = {self.ctrl.last_power:.4f}"
+        self.get_logger().info(f"{self.progress()}: {power}{self.progress_note()}{late}")

@@ -5,6 +5,8 @@ import numpy as np
 from ops_controller_ros.command_tracker import (
     MAX_STEPS_BETWEEN_READINGS,
     CommandTracker,
+    StepPairing,
+    sequence_number,
     steps_between,
 )
 
@@ -78,3 +80,69 @@ def test_steps_between_readings_from_the_publication_sequence_numbers():
     assert steps_between(41, None) == 1  # a middleware without numbers
     assert steps_between(900, 3) == 1  # a restarted simulator numbers from 1 again
     assert steps_between(0, 10**6) == MAX_STEPS_BETWEEN_READINGS  # a stall: capped
+
+
+def test_a_resent_command_stays_matched_once_its_setpoints_came_back():
+    """Issue 34: un-matching on a re-send cost the loop another set-points message per loss."""
+    t = CommandTracker(timeout_s=1.0)
+    t.sent([1.0], now=0.0)
+    assert t.on_setpoints([1.0], now=0.01)
+    t.sent([1.0], now=0.05)  # re-sent (its reading was lost): the simulator holds it already
+    assert t.resent and t.matched and t.is_pending([1.0])
+    t.sent([2.0], now=0.06)  # a new command is matched only by its own set-points
+    assert not t.resent and not t.matched and not t.is_pending([1.0])
+
+
+def _step(pairing, seq, lost=()):
+    """The simulator's step ``seq``: delays, trace, power, each unless ``lost``."""
+    if "delays" not in lost:
+        pairing.take("delays", seq)
+    if "trace" not in lost:
+        pairing.take("trace", seq, f"trace {seq}")
+    if "power" not in lost:
+        pairing.on_power(seq)
+
+
+def test_a_reading_takes_its_own_steps_trace_or_none():
+    p = StepPairing()
+    for seq in range(1, 30):
+        _step(p, seq)
+    assert p.offset("trace") == 0 and p.kept_for("trace", 29) == "trace 29"
+    _step(p, 30, lost=("trace",))  # the trace of step 30 was lost: not step 29's instead
+    assert p.kept_for("trace", 30) is None
+    _step(p, 31, lost=("delays",))
+    assert p.kept_for("trace", 31) == "trace 31"
+
+
+def test_the_executors_order_does_not_pair_a_power_with_the_next_steps_trace():
+    """Callbacks ready together run in subscription order: step 41's trace and delays before
+    step 40's power."""
+    p = StepPairing()
+    for seq in range(1, 40):
+        _step(p, seq)
+    p.take("delays", 40)
+    p.take("trace", 40, "trace 40")
+    p.take("delays", 41)
+    p.take("trace", 41, "trace 41")
+    p.on_power(40)
+    assert p.kept_for("trace", 40) == "trace 40"
+    assert p.step_of(40, "delays") == 40  # (the loop: a reading of step 40, not of step 41)
+
+
+def test_offsets_are_learned_and_copies_refused():
+    p = StepPairing()
+    for seq in range(1, 60):  # a publisher whose power numbers run 3 ahead of its traces
+        p.take("trace", seq, seq)
+        p.on_power(seq + 3)
+    assert p.offset("trace") == 3 and p.kept_for("trace", 50) == 47
+    assert p.take("delays", 7) and not p.take("delays", 7)  # latched + best-effort copies
+    assert sequence_number({"publication_sequence_number": 12}) == 12
+    assert sequence_number(None) is None and sequence_number({}) is None
+
+
+def test_without_sequence_numbers_the_latest_trace_is_taken():
+    p = StepPairing()
+    p.take("trace", None, "a")
+    p.take("trace", None, "b")
+    p.on_power(None)
+    assert p.kept_for("trace", None) == "b"
