@@ -17,6 +17,7 @@ import numpy as np
 from ops_sim_ros.config import make_config
 from ops_sim_ros.physics import PulseStacker, geometry_matrices, input_coding
 from ops_sim_ros.rendering import draw_trace
+from ops_sim_ros.rig import Actuator
 from ops_sim_ros.simulation import BatchedSimulation
 
 
@@ -172,6 +173,30 @@ def modes(out: pathlib.Path, stage: int = 5) -> None:
     plt.close(fig)
 
 
+def hysteresis(out: pathlib.Path) -> None:
+    """The delay line's position against its set-point over sweeps of the whole travel and of a
+    fifth of it, for the actuator_hysteresis of docs/physics.md (issue 30)."""
+    fig, ax = plt.subplots(figsize=(5.2, 4.4))
+    for fraction, colour in ((0.05, "tab:blue"), (0.12, "tab:red")):
+        cfg = make_config(stage=1, actuator_hysteresis=fraction)
+        half = cfg.actuator_range_fs
+        for amplitude, style in ((1.0, "-"), (0.2, "--")):
+            act = Actuator(cfg, num_envs=1)
+            x = amplitude * half * np.concatenate([np.linspace(0, 1, 50), np.linspace(1, -1, 100)])
+            x = np.concatenate([x, -x[50:], x[50:]])  # out, then two full cycles
+            y = np.array([act.move(np.array([[v]]))[0, 0] for v in x])
+            label = f"{fraction:.0%} of the travel" + (", a fifth of it swept" * (amplitude < 1))
+            ax.plot(x[150:] / half, y[150:] / half, style, color=colour, lw=1.2, label=label)
+    ax.plot([-1, 1], [-1, 1], ":", color="grey", lw=0.8, label="no hysteresis")
+    ax.set_xlabel("set-point / half travel")
+    ax.set_ylabel("delay-line position / half travel")
+    ax.set_title("actuator_hysteresis: open-loop piezo loops")
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(out / "physics_hysteresis.png", dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--out", default="docs/figures")
@@ -183,6 +208,7 @@ def main() -> None:
     walkoff(out)
     traces(out)
     modes(out)
+    hysteresis(out)
     print("wrote", *sorted(str(p) for p in out.glob("physics_*.png")))
 
 

@@ -176,6 +176,10 @@ def test_bad_commands_are_rejected_and_the_state_kept(procs, observer):
         ("rate_hz:=0.0", ["rate_hz", "[1.0, 1000.0]"]),
         ("split:=validation", ["split", "train, test"]),
         ("stage:=three", ["stage"]),
+        ("latency_steps:=-2", ["latency_steps", "-1 or int in [0, 1000]"]),
+        ("trace_adc_bits:=40", ["trace_adc_bits", "[0, 32]"]),
+        ("actuator_hysteresis:=1.0", ["actuator_hysteresis", "[0.0, 0.99]"]),
+        ("realism:=garage", ["realism", "ideal, lab", "garage"]),
     ],
 )
 def test_bad_parameters_stop_the_sim_before_it_spins(procs, param, words):
@@ -201,6 +205,13 @@ def test_parameters_change_live_and_stage_is_refused(procs, observer):
     assert "hard" in got.stdout
     ok = run_ros2("param", "set", "/ops_sim", "detector", "total")
     assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
+    # The rig (issue 30): a figure in range applies live, one out of range is refused with it.
+    ok = run_ros2("param", "set", "/ops_sim", "latency_steps", "2")
+    assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
+    bad = run_ros2("param", "set", "/ops_sim", "trace_adc_bits", "40")
+    assert "trace_adc_bits" in bad.stdout + bad.stderr and "[0, 32]" in bad.stdout + bad.stderr
+    n = observer.count("power")
+    observer.wait_count("power", n + 5)  # still stepping
 
 
 def test_reset_service_starts_a_new_episode(procs, observer):

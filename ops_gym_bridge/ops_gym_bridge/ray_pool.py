@@ -304,7 +304,16 @@ class RayPool:
         self.versions = versions()
         env = runtime_env()
         if address == "local":
-            ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False, runtime_env=env)
+            # address="local": a new instance of our own, whatever RAY_ADDRESS or the address a
+            # cluster left in Ray's temp folder says (without it, ray.init joined that cluster
+            # and refused num_cpus: issue 33).
+            ray.init(
+                address="local",
+                num_cpus=jobs,
+                include_dashboard=False,
+                log_to_driver=False,
+                runtime_env=env,
+            )
         else:
             ray.init(address=address, log_to_driver=False, runtime_env=env)
         from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy

@@ -23,7 +23,7 @@ pytestmark = pytest.mark.timeout(180)
 HEAD = textwrap.dedent(
     """
     import sys, ray
-    info = ray.init(num_cpus=0, include_dashboard=False, log_to_driver=False)
+    info = ray.init(address="local", num_cpus=0, include_dashboard=False, log_to_driver=False)
     print("GCS", info.address_info["gcs_address"], flush=True)
     sys.stdin.read()
     ray.shutdown()
@@ -177,9 +177,10 @@ def test_ctrl_c_brings_the_work_back_and_the_same_command_resumes(tmp_path):
     base = [sys.executable, "-m", "ops_gym_bridge.benchmark", "--profile", "smoke"]
     base += ["--out", str(out), "--ray-address", "local", "--jobs", "1", "--algos", "sac"]
     base += ["--modes", "easy", "--controllers", "--extra-stages", "--save-every", "100000"]
-    # The local node's TMPDIR (its tasks' folders; short: Ray's sockets go there too).
+    # The local node's TMPDIR (its tasks' folders; short: Ray's sockets go there too). A foreign
+    # cluster's address in the environment must not capture a local instance (issue 33).
     node_tmp = Path(tempfile.mkdtemp(prefix="opsn"))
-    env = {**os.environ, "TMPDIR": str(node_tmp)}
+    env = {**os.environ, "TMPDIR": str(node_tmp), "RAY_ADDRESS": "127.0.0.1:9"}
     proc = subprocess.Popen(
         [*base, "--timesteps", "50000"],
         stdout=subprocess.PIPE,

@@ -20,6 +20,7 @@ SPEED_OF_LIGHT_NM_PER_FS = 299.792458  # c in nm/fs
 MODES = ("easy", "medium", "hard", "extreme")
 SPLITS = ("train", "test")
 DETECTORS = ("polarizer", "total")
+REALISMS = ("ideal", "lab")
 MAX_STAGE = 10
 #: Inclusive (low, high) of the fields a user sets most (node parameters, ``--env``): the one
 #: rule that make_config, the simulator node's parameter descriptors and the docs follow.
@@ -34,6 +35,41 @@ LIMITS = {
     "drift_slope_max_cycles": (0.0, 1.0),
     "initial_sigma_cycles": (0.0, 10.0),
     "actuator_range_cycles": (0.0, 1000.0),
+    # the rig between controller and optics (issue 30; ops_sim_ros.rig, docs/physics.md)
+    "latency_steps": (0, 1000),
+    "actuator_lag_steps": (0.0, 1000.0),
+    "actuator_hysteresis": (0.0, 0.99),
+    "dac_bits": (0, 32),
+    "trace_adc_bits": (0, 32),
+    "trace_full_scale": (1e-6, 1e6),
+    "trace_averages": (1, 10000),
+}
+#: What a value of 0 means where it is allowed below the usual range (the error messages say it).
+IDEAL_ZERO = {"dac_bits": "an ideal DAC", "trace_adc_bits": "an ideal trace"}
+
+# The rig presets (``realism``): each fills these fields unless they are given. ``ideal`` is the
+# ideal stacker every figure before issue 30 was measured on; ``lab`` a typical lab's rig
+# (docs/physics.md, "Rig imperfections", gives each value's source).
+REALISM_PRESETS = {
+    "ideal": dict(
+        latency_steps=0,
+        actuator_lag_steps=0.0,
+        actuator_hysteresis=0.0,
+        dac_bits=0,
+        trace_adc_bits=0,
+        trace_full_scale=1.0,
+        trace_averages=1,
+    ),
+    "lab": dict(
+        latency_steps=1,
+        actuator_lag_steps=0.3,
+        actuator_hysteresis=0.12,
+        dac_bits=16,
+        trace_adc_bits=8,
+        trace_full_scale=1.25,
+        trace_averages=1,
+        detector_noise=0.002,
+    ),
 }
 
 # Each mode's initial delay errors and drift, after the authors' code (docs/physics.md, "Modes").
@@ -110,6 +146,15 @@ class OpsConfig:
     absolute_action_range_cycles: float = 1.0  # absolute actions in [-1, 1] map to +- this
     # --- episodes
     episode_steps: int = 200
+    # --- the rig between controller and optics (issue 30, ops_sim_ros.rig); ideal by default
+    realism: str = "ideal"  # the preset the fields below start from (REALISM_PRESETS)
+    latency_steps: int = 0  # a command acts this many steps after the reading it answered
+    actuator_lag_steps: float = 0.0  # first-order response of the delay line, steps
+    actuator_hysteresis: float = 0.0  # open-loop piezo: loop width, fraction of the travel
+    dac_bits: int = 0  # the drive's DAC over the actuator range (0: ideal)
+    trace_adc_bits: int = 0  # the trace's digitizer (0: ideal)
+    trace_full_scale: float = 1.0  # the digitizer's full scale, normalized energy (clipped)
+    trace_averages: int = 1  # acquisitions averaged per reading
 
     # ----------------------------------------------------------------- derived quantities
     @property
@@ -143,6 +188,21 @@ class OpsConfig:
     @property
     def absolute_action_range_fs(self) -> float:
         return self.cycles_to_fs(self.absolute_action_range_cycles)
+
+    @property
+    def ideal_actuator(self) -> bool:
+        """Commands act at once, exactly, on the delay lines."""
+        return (
+            self.latency_steps == 0
+            and self.actuator_lag_steps == 0.0
+            and self.actuator_hysteresis == 0.0
+            and self.dac_bits == 0
+        )
+
+    @property
+    def ideal_digitizer(self) -> bool:
+        """The detected energies are reported as they are (with the detector's noise)."""
+        return self.trace_adc_bits == 0 and self.trace_averages == 1
 
     @property
     def drift_enabled(self) -> bool:
@@ -191,9 +251,13 @@ _INT_FIELDS = {
     "drift_knot_min_steps",
     "drift_knot_max_steps",
     "episode_steps",
+    "latency_steps",
+    "dac_bits",
+    "trace_adc_bits",
+    "trace_averages",
 }
 _BOOL_FIELDS = {"drift_per_stage"}
-_STR_FIELDS = {"mode": MODES, "split": SPLITS, "detector": DETECTORS}
+_STR_FIELDS = {"mode": MODES, "split": SPLITS, "detector": DETECTORS, "realism": REALISMS}
 
 
 def _check(cond: bool, message: str) -> None:
@@ -224,9 +288,12 @@ def make_config(
         f"unknown parameter(s) {', '.join(unknown)}; allowed: {', '.join(_FIELD_NAMES)}",
     )
 
+    realism = overrides.get("realism", "ideal")
+    _check(realism in REALISMS, f"realism must be one of {', '.join(REALISMS)} (got {realism!r})")
     values: dict[str, Any] = dict(stage=stage, mode=mode, split=split)
     values.update(_MODE_DEFAULTS[mode])
     values.update(_DRIFT_DEFAULTS.get((mode, split), {}))
+    values.update(REALISM_PRESETS[realism])
     values.update(overrides)
 
     _check_types(values)
@@ -288,6 +355,12 @@ def _check_ranges(cfg: OpsConfig) -> None:
         _check(getattr(cfg, name) >= 0, f"{name} must be >= 0 (got {getattr(cfg, name)})")
     for name, (low, high) in LIMITS.items():
         value = getattr(cfg, name)
+        if name in IDEAL_ZERO:
+            _check(
+                value == 0 or 1 <= value <= high,
+                f"{name} must be 0 ({IDEAL_ZERO[name]}) or from 1 to {high} (got {value})",
+            )
+            continue
         _check(low <= value <= high, f"{name} must be from {low} to {high} (got {value})")
     _check(
         cfg.drift_slope_min_cycles <= cfg.drift_slope_max_cycles,

@@ -21,7 +21,7 @@ from std_msgs.msg import Float32, Float32MultiArray
 from std_srvs.srv import Trigger
 
 from .command_inbox import CommandInbox
-from .config import DETECTORS, LIMITS, MAX_STAGE, MODES, SPLITS, make_config
+from .config import DETECTORS, LIMITS, MAX_STAGE, MODES, REALISMS, SPLITS, make_config
 from .node_params import ParamSpec, check_change, coerce, declare_all
 from .ros_interface import (
     QOS_RELIABLE,
@@ -53,6 +53,19 @@ _CONFIG_OVERRIDES = (
     ("actuator_range_cycles", "set-points are clipped to +- this, optical cycles"),
     ("detector_noise", "std of additive noise on detected pulse energies (normalized)"),
 )
+
+# The rig between controller and optics (issue 30, docs/physics.md "Rig imperfections"); -1
+# means "the realism preset's value".
+_RIG_OVERRIDES = (
+    ("latency_steps", "a command acts this many steps after the reading it answered"),
+    ("actuator_lag_steps", "first-order response of the delay lines, steps"),
+    ("actuator_hysteresis", "open-loop piezo hysteresis: loop width, fraction of the travel"),
+    ("dac_bits", "bits of the drive's DAC over the actuator range (0: ideal)"),
+    ("trace_adc_bits", "bits of the trace's digitizer (0: ideal)"),
+    ("trace_full_scale", "the digitizer's full scale, normalized pulse energy"),
+    ("trace_averages", "traces averaged per reading"),
+)
+_INT_RIG_FIELDS = ("latency_steps", "dac_bits", "trace_adc_bits", "trace_averages")
 
 PARAMS = [
     ParamSpec(
@@ -107,6 +120,32 @@ PARAMS = [
         )
         for name, desc in _CONFIG_OVERRIDES
     ],
+    ParamSpec(
+        "realism",
+        "ideal",
+        "the rig's preset: ideal (an ideal stacker) or lab (a typical lab's rig)",
+        choices=REALISMS,
+    ),
+    *[
+        ParamSpec(
+            name,
+            -1 if name in _INT_RIG_FIELDS else -1.0,
+            desc + " (-1: the realism preset's)",
+            low=LIMITS[name][0],
+            high=LIMITS[name][1],
+            special=(-1,) if name in _INT_RIG_FIELDS else (-1.0,),
+        )
+        for name, desc in _RIG_OVERRIDES
+    ],
+    ParamSpec(
+        "latency_ms",
+        -1.0,
+        "latency of a command in ms, as steps at rate_hz (rounded; overrides latency_steps; "
+        "-1: latency_steps)",
+        low=0.0,
+        high=60000.0,
+        special=(-1.0,),
+    ),
 ]
 _SPECS = {p.name: p for p in PARAMS}
 _WARN_PERIOD_S = 2.0
@@ -118,6 +157,9 @@ RATE_TOLERANCE = 0.9
 def config_from_params(values: dict):
     """The validated OpsConfig for a set of parameter values (ParameterError if impossible)."""
     overrides = {name: values[name] for name, _ in _CONFIG_OVERRIDES if values[name] >= 0.0}
+    overrides.update({name: values[name] for name, _ in _RIG_OVERRIDES if values[name] != -1})
+    if values["latency_ms"] >= 0.0:
+        overrides["latency_steps"] = round(values["latency_ms"] * values["rate_hz"] / 1000.0)
     try:
         return make_config(
             stage=values["stage"],
@@ -125,6 +167,7 @@ def config_from_params(values: dict):
             split=values["split"],
             detector=values["detector"],
             samples_per_slot=values["samples_per_slot"],
+            realism=values["realism"],
             **overrides,
         )
     except ValueError as exc:
@@ -169,7 +212,7 @@ class SimNode(Node):
         self._set_command_intake()
         self.get_logger().info(
             f"stage={self._config.stage} mode={self._config.mode} split={self._config.split} "
-            f"detector={self._config.detector} seed={self.seed} "
+            f"detector={self._config.detector} realism={self._config.realism} seed={self.seed} "
             + ("lockstep" if self._values["lockstep"] else f"rate={self._values['rate_hz']} Hz")
         )
         self._publish()

@@ -3,7 +3,9 @@
 State per environment: the delay set-points (fs, relative to the nominal delays; 0 at every
 reset), the hidden delay-line offsets (the initial delay error plus its random walk and drift, see
 :mod:`ops_sim_ros.noise`) and the step count of the current episode. Every step: set-points
-(clipped to the actuator range) + offsets -> applied delays -> physics.
+(clipped to the actuator range) + offsets -> applied delays -> physics. On a rig that is not
+ideal (:mod:`ops_sim_ros.rig`: latency, DAC, hysteresis, lag) the set-points pass through the
+actuator to become delay-line positions first, and the detected energies through the digitizer.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from .arrays import clip as _clip
 from .config import OpsConfig
 from .noise import DelayNoise
 from .physics import power_to_reward, stacker_from_config
+from .rig import Actuator, Digitizer
 
 _isfinite = np.isfinite
 _all = np.logical_and.reduce  # ndarray.all() without its Python wrapper
@@ -25,8 +28,8 @@ _all = np.logical_and.reduce  # ndarray.all() without its Python wrapper
 class StepResult:
     """One control step (or the measurement at reset) for a batch of B environments."""
 
-    setpoints_fs: np.ndarray  # (B, N) set-points after clipping
-    applied_fs: np.ndarray  # (B, N) delays really applied: set-point + noise
+    setpoints_fs: np.ndarray  # (B, N) set-points after clipping (as commanded)
+    applied_fs: np.ndarray  # (B, N) delays really applied: delay-line position + noise
     power: np.ndarray  # (B,) P_N / P_max
     reward: np.ndarray  # (B,) eq. (3), -(1 - power)^2
     pulse_energies: np.ndarray  # (B, S) detected slot energies (normalized, + detector noise)
@@ -63,6 +66,11 @@ class BatchedSimulation:
         self.setpoints_fs = np.zeros((self.num_envs, self.stage))
         self.step_count = np.zeros(self.num_envs, dtype=np.int64)
         self.last: StepResult | None = None
+        # The rig between commands and optics: None where ideal (the exact former arithmetic).
+        self.actuator = None if config.ideal_actuator else Actuator(config, self.num_envs)
+        self.digitizer = None if config.ideal_digitizer else Digitizer(config)
+        if self.actuator is not None:
+            self.actuator.reset(self.setpoints_fs)
 
     def with_config(self, config: OpsConfig) -> BatchedSimulation:
         """A simulation with other figures that continues this one: same random stream,
@@ -71,6 +79,8 @@ class BatchedSimulation:
             raise ValueError(f"stage must stay {self.stage} (got {config.stage})")
         sim = BatchedSimulation(config, num_envs=self.num_envs, seed=self.rng)
         sim.setpoints_fs = self.setpoints_fs.copy()
+        if sim.actuator is not None:
+            sim.actuator.reset(sim.setpoints_fs)
         sim.step_count = self.step_count.copy()
         sim.noise.walk = self.noise.offset
         sim.last = self.last
@@ -94,6 +104,8 @@ class BatchedSimulation:
         sp = self.setpoints_fs.copy()  # fresh array: earlier results may still view the old one
         sp[mask] = 0.0
         self.setpoints_fs = sp
+        if self.actuator is not None:
+            self.actuator.reset(sp, mask)
         self.noise.new_episodes(mask)
         self.step_count[mask] = 0
         result = self._measure(
@@ -132,6 +144,8 @@ class BatchedSimulation:
             if not np.isfinite(sp).all():
                 raise ValueError("set-points must be finite")
             self.setpoints_fs = _clip(sp, -self.range_fs, self.range_fs)
+            if self.actuator is not None:
+                self.actuator.reset(self.setpoints_fs)
         if delay_errors_fs is not None:
             err = np.array(delay_errors_fs, dtype=np.float64).reshape(shape)
             if not np.isfinite(err).all():
@@ -139,6 +153,10 @@ class BatchedSimulation:
             self.noise.walk = err - self.noise.mu
         self.last = self._measure(self.setpoints_fs.copy(), np.zeros(shape, bool), advance=False)
         return self.last
+
+    def _positions(self, setpoints: np.ndarray) -> np.ndarray | None:
+        """The delay lines' positions after one step on these set-points (None: ideal)."""
+        return None if self.actuator is None else self.actuator.move(setpoints)
 
     # ------------------------------------------------------------------ stepping
     def step_setpoints(self, setpoints_fs) -> StepResult:
@@ -150,7 +168,7 @@ class BatchedSimulation:
         _clip(sp, -self.range_fs, self.range_fs, out=sp)
         self.setpoints_fs = sp
         self.step_count += 1
-        self.last = self._measure(sp, clipped)
+        self.last = self._measure(sp, clipped, positions=self._positions(sp))
         return self.last
 
     def step_increments(self, actions) -> StepResult:
@@ -165,18 +183,25 @@ class BatchedSimulation:
         _clip(sp, -self.range_fs, self.range_fs, out=sp)
         self.setpoints_fs = sp
         self.step_count += 1
-        self.last = self._measure(sp, clipped)
+        self.last = self._measure(sp, clipped, positions=self._positions(sp))
         return self.last
 
-    def _measure(self, setpoints: np.ndarray, clipped: np.ndarray, advance=True) -> StepResult:
+    def _measure(
+        self, setpoints: np.ndarray, clipped: np.ndarray, advance=True, positions=None
+    ) -> StepResult:
+        """``positions``: the delay lines' (B, N) fs where they are not the set-points."""
+        if positions is None and self.actuator is not None:
+            positions = self.actuator.position.copy()
         applied = self.noise.sample(advance)
-        applied += setpoints  # the noise array is fresh: reuse it for the applied delays
+        applied += setpoints if positions is None else positions  # (a fresh array: reused)
         true_energies, power = self.stacker.energies_and_power(applied)
         energies = true_energies
         gain, offset = self.config.detector_gain, self.config.detector_offset
         if gain != 1.0 or offset != 0.0:  # a detector off its calibration (power stays exact)
             energies = energies * gain + offset
-        if self.config.detector_noise > 0.0:
+        if self.digitizer is not None:
+            energies = self.digitizer.read(energies, self.config.detector_noise, self.rng)
+        elif self.config.detector_noise > 0.0:
             energies = energies + self.rng.normal(0.0, self.config.detector_noise, energies.shape)
         reward = power_to_reward(power)
         if self.num_envs == 1:
