@@ -32,6 +32,7 @@ import argparse
 import contextlib
 import platform
 import re
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -329,7 +330,7 @@ def main(argv=None) -> int:
         all_results[name] = run_controller(name, args, logs)
         print(f"[{name}] logs in {logs}", flush=True)
     text = table(all_results)
-    cmd = "python scripts/bench_faults.py " + " ".join(
+    cmd = "python scripts/bench_faults.py " + shlex.join(
         a for a in sys.argv[1:] if not re.match(r"--no-docs", a)
     )
     exits = [f"{n}: {r['exited']}" for n, r in all_results.items() if "exited" in r]

@@ -260,6 +260,9 @@ class PhaseTracker:
         self.stacker = stacker_from_config(model)
         self.period_fs = model.optical_period_fs
         self.range_cycles = model.actuator_range_cycles
+        # The rig's latency, as the model says (issue 30): a command acts this many steps late,
+        # so a reading is matched to the command in effect then, and a command aims that far.
+        self.latency = int(getattr(model, "latency_steps", 0))
         self._rng = np.random.default_rng(seed)
         self.reset(np.zeros(self.stage) if setpoints_fs is None else setpoints_fs)
 
@@ -269,6 +272,10 @@ class PhaseTracker:
         u = np.asarray(setpoints_fs, dtype=np.float64).reshape(self.stage) / self.period_fs
         self._base = u.copy()  # set-points (cycles) around which the excursions are made
         self._last_command = u.copy()
+        # latency > 0: commands on their way, [step it acts at without latency, set-points
+        # (cycles), whole-cycle move], and the set-points acting on the delay lines now
+        self._in_flight: deque = deque()
+        self._acting = u.copy()
         self._awaiting = False  # a command was given and its reading has not come yet
         noisy = self.params.detector_noise >= self.params.noisy_threshold
         self._window_len = self._fit_window(noisy)
@@ -332,8 +339,9 @@ class PhaseTracker:
         self._revise = False
         p = self.params
         if self.estimate is not None:
-            # aim at the stacking point of the next step, by the smallest move modulo a period
-            target = -(self.estimate + self.drift)
+            # aim at the stacking point of the step the command acts at, by the smallest move
+            # modulo a period
+            target = -(self.estimate + (1 + self.latency) * self.drift)
             self._base = self._base + _wrap(target - self._base)
         if self.estimate is None or self._recovering is not None:
             # acquiring, or recovering (excursions around the prediction)
@@ -348,7 +356,22 @@ class PhaseTracker:
         u = np.clip(u, -self.range_cycles, self.range_cycles)
         self._last_command = u
         self._awaiting = True
+        if self.latency:
+            self._in_flight.append([self._step + 1, u.copy(), self._hop])
+            self._hop = None
         return u * self.period_fs
+
+    def _reading_setpoints(self):
+        """(set-points (cycles), whole-cycle move) that shaped the reading at ``self._step``:
+        the last command, or with latency the one in effect ``latency`` steps before."""
+        if not self.latency:
+            hop, self._hop = self._hop, None
+            return self._last_command, hop
+        hop = None
+        while self._in_flight and self._in_flight[0][0] <= self._step - self.latency:
+            _, self._acting, moved = self._in_flight.popleft()
+            hop = moved if moved is not None else hop
+        return self._acting, hop
 
     def _plan_hop(self):
         """A whole-cycle move of one stage's set-point now, if one is due: (stage, cycles)."""
@@ -395,17 +418,17 @@ class PhaseTracker:
         self._tick += 1
         self._step += steps
         self._gap = steps
+        u_now, hop = self._reading_setpoints()
         if self._noise_var is None and self._history:
             last_u, last_y, _ = self._history[-1]
-            if np.array_equal(last_u, self._last_command):  # the same set-points twice
+            if np.array_equal(last_u, u_now):  # the same set-points twice
                 diff = y[:-1] - last_y[:-1]
                 self._noise_var = float(np.mean(diff * diff)) / 2.0
                 if self._noise_var >= self.params.noisy_threshold**2:
                     self._window_len = self._fit_window(True)
                     self._history = deque(self._history, maxlen=self._window_len)
-        reading = (self._last_command.copy(), y, self._step)
+        reading = (u_now.copy(), y, self._step)
         self._history.append(reading)
-        hop, self._hop = self._hop, None
         if self._recovering is not None:
             self._recovering.append(reading)
             self._recover()
@@ -1024,6 +1047,9 @@ class PhaseTracker:
         self.drift = self.drift * ratio
         self._base = self._base * ratio
         self._last_command = self._last_command * ratio
+        self._acting = self._acting * ratio
+        for entry in self._in_flight:
+            entry[1] = entry[1] * ratio
         self._history = deque(
             ((h[0] * ratio, h[1], h[2]) for h in self._history), maxlen=self._window_len
         )

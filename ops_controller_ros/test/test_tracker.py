@@ -271,3 +271,29 @@ def test_whole_cycle_moves_on_a_model_off_in_wavelength_are_not_taken_for_knots(
         assert tracker.hops >= 20 and tracker.knots < tracker.hops, (tracker.knots, tracker.hops)
         assert np.abs(tracker.drift).max() < 0.005  # no drift where there is none
         assert abs(tracker.calibration.wavelength_nm - 1009.4) < 0.003 * 1009.4
+
+
+def _latency_run(seed: int, latency: int, told: bool, steps: int = 150) -> np.ndarray:
+    """Hard mode on a rig whose commands act ``latency`` steps late; the tracker's model has
+    that latency if ``told``."""
+    rig = make_config(stage=5, mode="hard", split="test", latency_steps=latency)
+    sim = BatchedSimulation(rig, num_envs=1, seed=seed)
+    r = sim.reset(seed=seed)
+    model = rig if told else rig.replace(latency_steps=0)
+    tracker = PhaseTracker(model, setpoints_fs=r.setpoints_fs[0], seed=seed)
+    powers = []
+    for _ in range(steps):
+        r = sim.step_setpoints(tracker.command()[None, :])
+        tracker.observe(r.power[0], r.pulse_energies[0])
+        powers.append(r.power[0])
+    return np.array(powers)
+
+
+@pytest.mark.parametrize("latency", [1, 3])
+def test_told_the_latency_it_holds_hard_mode(latency):
+    """Issue 30: one step of latency took the untold tracker from 0.997 to 0.10. Told it, the
+    tracker matches each reading to the command in effect then and aims that far ahead."""
+    told = _latency_run(7, latency, told=True)
+    blind = _latency_run(7, latency, told=False)
+    assert told[-50:].min() > 0.95, told[-50:].min()
+    assert told[-50:].mean() > blind[-50:].mean() + 0.3, (told[-50:].mean(), blind[-50:].mean())

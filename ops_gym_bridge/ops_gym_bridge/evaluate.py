@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from ops_sim_ros.config import SPLITS, make_config
+from ops_sim_ros.config import REALISMS, RIG_KEYS, SPLITS, make_config
 from ops_sim_ros.observation import OBSERVATION_SETS
 from ops_sim_ros.threads import limit_blas_threads
 
@@ -119,6 +119,18 @@ def build_parser():
         "pulse_fwhm_fs=1200) that the controller is not told of",
     )
     p.add_argument(
+        "--realism",
+        choices=REALISMS,
+        help="the rig's preset (docs/physics.md, 'Rig imperfections'): ideal (the default) or "
+        "lab; the simulator runs it and the controller is told of it",
+    )
+    cli_args.add_key_value_argument(
+        p,
+        "--rig",
+        help="figures of the rig that the simulator runs AND the controller is told of (e.g. "
+        "latency_steps=2 trace_adc_bits=8): " + ", ".join(RIG_KEYS),
+    )
+    p.add_argument(
         "--observation",
         choices=OBSERVATION_SETS,
         help="observation set to run the model on: a model runs only on the set it was trained "
@@ -141,6 +153,7 @@ class Subject:
     detector: str
     env_overrides: dict[str, Any]
     meta: dict[str, Any] = field(default_factory=dict)
+    rig: dict[str, Any] = field(default_factory=dict)  # known to both sim and controller
     controller: str | None = None
     controller_params: dict[str, Any] = field(default_factory=dict)
     policy: Any = None  # LoadedPolicy
@@ -148,7 +161,7 @@ class Subject:
     def nominal_config(self, split: str, steps: int):
         """The configuration the controller is built for (no --env overrides)."""
         return make_config(
-            self.stage, self.mode, split, detector=self.detector, episode_steps=steps
+            self.stage, self.mode, split, detector=self.detector, episode_steps=steps, **self.rig
         )
 
     def sim_config(self, split: str, steps: int):
@@ -185,6 +198,24 @@ def _parse(items: list[str], what: str) -> dict[str, Any]:
         raise EvaluationError(str(exc)) from None
 
 
+def resolve_rig(args) -> dict[str, Any]:
+    """The rig's figures that both the simulator and the controller know (--realism, --rig),
+    checked as make_config checks them."""
+    rig = _parse(args.rig, "--rig figure")
+    unknown = sorted(set(rig) - set(RIG_KEYS))
+    if unknown:
+        raise EvaluationError(
+            f"--rig {', '.join(unknown)}: not a figure of the rig; allowed: {', '.join(RIG_KEYS)}"
+        )
+    if args.realism is not None:
+        rig["realism"] = args.realism
+    try:
+        make_config(**rig)
+    except ValueError as exc:
+        raise EvaluationError(str(exc)) from None
+    return rig
+
+
 def resolve_subject(args) -> Subject:
     """The controller or policy ``args`` ask for, with the environment to evaluate it on."""
     if bool(args.controller) == bool(args.model):
@@ -193,6 +224,7 @@ def resolve_subject(args) -> Subject:
     for key in ("stage", "mode", "split", "detector", "episode_steps"):
         if key in env_overrides:
             raise EvaluationError(f"--env {key}=...: use --{key.replace('_', '-')} instead")
+    rig = resolve_rig(args)
     if args.controller:
         if args.observation is not None:
             raise EvaluationError(
@@ -206,6 +238,7 @@ def resolve_subject(args) -> Subject:
             mode=args.mode or cli_args.ENV_DEFAULTS["mode"],
             detector=args.detector or cli_args.ENV_DEFAULTS["detector"],
             env_overrides=env_overrides,
+            rig=rig,
             controller=args.controller,
             controller_params=params,
             meta={"controller": args.controller, "controller_params": params},
@@ -227,6 +260,7 @@ def resolve_subject(args) -> Subject:
         mode=args.mode or loaded.mode,
         detector=args.detector or trained_detector,
         env_overrides=env_overrides,
+        rig=rig,
         policy=loaded,
         meta={
             "controller": loaded.algo,
@@ -308,6 +342,7 @@ def evaluate(args, subject: Subject | None = None) -> dict[str, Any]:
         "mode": subject.mode,
         "detector": subject.detector,
         "env_overrides": subject.env_overrides,
+        "rig": subject.rig,
         "episodes_per_seed": args.episodes,
         "seeds": list(args.seeds),
         "steps": args.steps,
@@ -402,11 +437,13 @@ def format_table(results: dict[str, Any]) -> str:
         f"{results['controller']} on stage {results['stage']}, {results['mode']} mode "
         f"({len(results['seeds'])} seeds x {results['episodes_per_seed']} episodes, "
         f"{results['steps']} steps)",
-        f"{'split':<6} {'final P_N/P_max':>20} {'episode return':>20} {'initial P_N':>12}",
+        f"{'split':<6} {'final P_N/P_max':>20} {'worst episode':>14} {'episode return':>20} "
+        f"{'initial P_N':>12}",
     ]
     for split, s in results["splits"].items():
         lines.append(
             f"{split:<6} {s['final_power_mean']:>11.4f} ± {s['final_power_std']:<6.4f} "
+            f"{s['final_power_min_episode']:>14.4f} "
             f"{s['episode_return_mean']:>11.2f} ± {s['episode_return_std']:<6.2f} "
             f"{s['initial_power_mean']:>12.4f}"
         )

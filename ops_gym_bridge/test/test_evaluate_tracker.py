@@ -17,3 +17,21 @@ def test_evaluate_controller_tracker_with_a_model_mismatch(tmp_path):
     assert result["controller"] == "tracker"
     for split in result["splits"].values():
         assert split["curve_mean"][-1] > 0.97, split["curve_mean"][-5:]
+
+
+def test_a_rig_the_tracker_is_told_of_and_one_it_is_not(tmp_path, capsys):
+    """`--rig latency_steps=2`: the simulator's commands act two steps late and the tracker
+    knows it (issue 30; told nothing, one step of latency took it to 0.10). The summary prints
+    the worst episode beside the mean; a figure that is not the rig's is refused by name."""
+    out = tmp_path / "eval"
+    argv = ["--controller", "tracker", "--stage", "3", "--mode", "medium", "--episodes", "2"]
+    argv += ["--seeds", "0", "--steps", "60", "--splits", "test", "--out", str(out)]
+    assert evaluate.run([*argv, "--rig", "latency_steps=2", "--no-plot"]) == 0
+    result = json.loads((out / "evaluation.json").read_text())
+    assert result["rig"] == {"latency_steps": 2}
+    assert result["splits"]["test"]["final_power_min_episode"] > 0.95
+    assert "worst episode" in capsys.readouterr().out
+    assert evaluate.run([*argv, "--rig", "wavelength_nm=1000", "--no-plot", "--quiet"]) == 2
+    assert "--rig wavelength_nm: not a figure of the rig" in capsys.readouterr().err
+    assert evaluate.run([*argv, "--rig", "latency_steps=-1", "--no-plot", "--quiet"]) == 2
+    assert "latency_steps must be from 0 to 1000" in capsys.readouterr().err
