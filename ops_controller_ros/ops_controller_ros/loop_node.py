@@ -3,13 +3,15 @@
 
 Pairing of readings with set-points: the simulator publishes ``ops/delays`` (the set-points of a
 step), then ``ops/intensity`` and ``ops/power``. After sending a command the node waits for a
-delays message equal to it (:class:`CommandTracker`); only a power reading that arrives while the
-latest delays message matches the command is used, with the trace of that same step, so a reading
-never predates its command. The stage count (and the trace's samples per slot) come from the
-messages. If no matching reading arrives within ``timeout_s`` (simulator slow, restarted or gone)
-the command is sent again; a simulator that comes back with another stage restarts the controller
-from its set-points. A lockstep simulator whose first trace was missed is asked for a step at its
-present set-points.
+delays message equal to it (:class:`CommandTracker`); a power reading is used only when its step
+(by DDS sequence number, :class:`StepPairing`) is not before the first step reported on the
+command's set-points, with the trace of that same step, so a reading never predates its command
+and never mixes two steps (issue 34; without sequence numbers: the latest set-points must equal
+the command, and the latest trace is taken). The stage count (and the trace's samples per slot)
+come from the messages. If no matching reading arrives within ``timeout_s`` (simulator slow,
+restarted or gone) the command is sent again; a simulator that comes back with another stage
+restarts the controller from its set-points. A lockstep simulator whose first trace was missed is
+asked for a step at its present set-points.
 
 Subclasses declare their own parameters and build the controller (:meth:`build_controller`).
 Only ``rate_hz`` and ``timeout_s`` change live; every other parameter is fixed after start (a
