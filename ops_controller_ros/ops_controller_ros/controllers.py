@@ -41,7 +41,13 @@ class Controller(Protocol):
 def _make_spgd(model, params: dict[str, Any], setpoints_fs, seed):
     from .spgd import SpgdParams, SpgdPid
 
-    return SpgdPid(model.stage, SpgdParams(**params), setpoints_fs=setpoints_fs, seed=seed)
+    return SpgdPid(
+        model.stage,
+        SpgdParams(**params),
+        setpoints_fs=setpoints_fs,
+        seed=seed,
+        latency=getattr(model, "latency_steps", 0),
+    )
 
 
 def _make_tracker(model, params: dict[str, Any], setpoints_fs, seed):

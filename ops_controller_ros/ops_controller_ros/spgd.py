@@ -30,10 +30,17 @@ plateau seen is remembered: a restart leaves from it.
 The class is a state machine with no notion of time or transport: ``command()`` gives
 the set-points to apply next, ``observe(power)`` the reading they produced. The ROS node and the
 in-process evaluation both drive it the same way.
+
+Latency (``latency`` > 0, the rig's ``latency_steps``; issue 30): a command acts that many steps
+after the reading it answered, so the reading after a command was made by the one ``latency``
+commands before. SPGD then keeps a perturbation in flight every step, files each reading under
+the perturbation that made it (J+ or J- of which pair), and updates the set-points when a
+pair's second reading comes: the same iteration rate, each gradient ``latency`` steps old.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -94,9 +101,19 @@ PAPER = {"normalized": False, "recovery": "none"}
 class SpgdPid:
     """Two-sided SPGD with a PID stage on the update (see module docstring)."""
 
-    def __init__(self, stage: int, params: SpgdParams | None = None, setpoints_fs=None, seed=None):
+    def __init__(
+        self,
+        stage: int,
+        params: SpgdParams | None = None,
+        setpoints_fs=None,
+        seed=None,
+        latency: int = 0,
+    ):
         self.stage = int(stage)
         self.params = params or SpgdParams()
+        if int(latency) < 0:
+            raise ValueError(f"latency must be >= 0 steps (got {latency})")
+        self.latency = int(latency)
         self._rng = np.random.default_rng(seed)
         self.reset(np.zeros(self.stage) if setpoints_fs is None else setpoints_fs)
 
@@ -117,6 +134,13 @@ class SpgdPid:
         self._since_restart = 0
         self._recent = []  # P_N/P_max of each iteration since the last (re)start
         self._best = (-np.inf, u.copy())  # (plateau power, its set-points)
+        # latency > 0: what each command in flight was ((epoch, pair, +1 / -1 / 0 for a walk
+        # step), oldest first), the command given and not yet read, the pairs' J+
+        self._in_flight: deque = deque()
+        self._given = None
+        self._epoch = 0  # a restart starts a new one: perturbations of the old are not used
+        self._pair = 0
+        self._pairs: dict = {}  # (epoch, pair) -> [signs, set-points, J+ or None]
 
     # ------------------------------------------------------------------ restarts
     @property
@@ -126,6 +150,7 @@ class SpgdPid:
 
     def _restart(self) -> None:
         p = self.params
+        self._epoch += 1
         if self.last_power > self._best[0]:
             self._best = (self.last_power, self.setpoints_fs.copy())
         start = self._best[1]
@@ -144,6 +169,8 @@ class SpgdPid:
 
     def command(self) -> np.ndarray:
         """Set-points (fs) to apply now: the scan's next point, else u + a s, then u - a s."""
+        if self.latency:
+            return self._command_in_flight()
         if self._walk:
             return self._walk[0]
         sign = 1.0 if self._phase == 0 else -1.0
@@ -155,6 +182,9 @@ class SpgdPid:
         SPGD uses the power only; ``pulse_energies`` and ``steps`` are accepted for the common
         interface of :mod:`ops_controller_ros.controllers` (a gradient step has no model of
         time)."""
+        if self.latency:
+            self._observe_in_flight(float(power))
+            return
         if self._walk:
             self._walk.pop(0)
             return
@@ -164,10 +194,16 @@ class SpgdPid:
             if self.iterations == 0:  # no J+/J- pair yet: the reading itself
                 self.last_power = self._j_plus
             return
+        self._update(self._j_plus, float(power), self._signs)
+        self._signs = self._rng.choice((-1.0, 1.0), size=self.stage)
+        self._phase = 0
+        self._maybe_restart()
+
+    def _update(self, j_plus: float, j_minus: float, signs: np.ndarray) -> None:
+        """One iteration from a pair's two readings: gradient, PID, set-points."""
         p = self.params
-        j_minus = float(power)
-        self.last_power = 0.5 * (self._j_plus + j_minus)
-        gradient = (self._j_plus - j_minus) / (2.0 * p.perturbation_fs) * self._signs
+        self.last_power = 0.5 * (j_plus + j_minus)
+        gradient = (j_plus - j_minus) / (2.0 * p.perturbation_fs) * signs
         if p.normalized:  # the gradient of log P: the same step size at any power
             gradient = gradient / max(self.last_power, p.normalize_floor)
         error = p.gain * gradient
@@ -177,11 +213,12 @@ class SpgdPid:
         self._velocity = p.momentum * self._velocity + update
         self._velocity = np.clip(self._velocity, -p.max_update_fs, p.max_update_fs)
         self.setpoints_fs = self.setpoints_fs + self._velocity
-        self._signs = self._rng.choice((-1.0, 1.0), size=self.stage)
-        self._phase = 0
         self.iterations += 1
         self._since_restart += 1
         self._recent.append(self.last_power)
+
+    def _maybe_restart(self) -> None:
+        p = self.params
         if (
             p.recovery == "restart"
             and self._since_restart >= p.restart_after
@@ -189,6 +226,46 @@ class SpgdPid:
             and _flat(self._recent, p.restart_after, p.restart_flat)
         ):
             self._restart()  # stalled on a side peak: look elsewhere
+
+    # ------------------------------------------------------------------ with latency
+    def _command_in_flight(self) -> np.ndarray:
+        if self._given is not None:  # asked again before its reading (a node's re-send)
+            return self._given
+        if self._walk:
+            command, tag = self._walk.pop(0), (self._epoch, None, 0)
+        else:
+            key = (self._epoch, self._pair)
+            if key not in self._pairs:  # both halves of a pair around the same set-points
+                signs = self._rng.choice((-1.0, 1.0), size=self.stage)
+                self._pairs[key] = [signs, self.setpoints_fs.copy(), None]
+            signs, base, _ = self._pairs[key]
+            sign = 1.0 if self._phase == 0 else -1.0
+            command = base + sign * self.params.perturbation_fs * signs
+            tag = (*key, sign)
+            self._pair += self._phase  # the pair's second command: the next one starts anew
+            self._phase ^= 1
+        self._in_flight.append(tag)
+        self._given = command
+        return command
+
+    def _observe_in_flight(self, power: float) -> None:
+        self._given = None
+        if len(self._in_flight) <= self.latency:
+            return  # made by the set-points before the first command
+        epoch, pair, sign = self._in_flight.popleft()
+        if self.iterations == 0:
+            self.last_power = power  # no J+/J- pair yet: the reading itself
+        if sign == 0 or epoch != self._epoch:
+            return  # a walk step, or a perturbation from before a restart
+        if sign > 0:
+            self._pairs[(epoch, pair)][2] = power
+            return
+        signs, _, j_plus = self._pairs.pop((epoch, pair))
+        if j_plus is not None:
+            self._update(j_plus, power, signs)
+            self._maybe_restart()
+        if self._walk:  # restarted: the next commands walk
+            self._phase = 0
 
 
 def _flat(powers: list[float], window: int, tolerance: float) -> bool:
