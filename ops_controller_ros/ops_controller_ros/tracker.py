@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -247,6 +247,15 @@ def _wrap(cycles):
     return cycles - np.floor(cycles + 0.5)
 
 
+def _told_noise(params: TrackerParams, model) -> TrackerParams:
+    """The parameters with the detector noise the rig's model implies (its detector noise and
+    digitizer, :func:`ops_sim_ros.rig.reading_noise_std`) when that is more than assumed."""
+    from ops_sim_ros.rig import reading_noise_std
+
+    noise = reading_noise_std(model) if hasattr(model, "trace_adc_bits") else 0.0
+    return replace(params, detector_noise=noise) if noise > params.detector_noise else params
+
+
 class PhaseTracker:
     """Model-based stacking controller (see the module docstring): reset / command / observe."""
 
@@ -255,7 +264,7 @@ class PhaseTracker:
 
         self.model = model
         self.stage = int(model.stage)
-        self.params = params or TrackerParams()
+        self.params = _told_noise(params or TrackerParams(), model)
         self.calibration = ModelCalibration(model, self.params.calibration_memory)
         self.stacker = stacker_from_config(model)
         self.period_fs = model.optical_period_fs
