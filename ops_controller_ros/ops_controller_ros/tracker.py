@@ -272,6 +272,9 @@ class PhaseTracker:
         # The rig's latency, as the model says (issue 30): a command acts this many steps late,
         # so a reading is matched to the command in effect then, and a command aims that far.
         self.latency = int(getattr(model, "latency_steps", 0))
+        # ... and its delay lines' first-order response: a reading is matched to where they are
+        lag = float(getattr(model, "actuator_lag_steps", 0.0))
+        self.lag_gain = 1.0 - float(np.exp(-1.0 / lag)) if lag > 0.0 else None
         self._rng = np.random.default_rng(seed)
         self.reset(np.zeros(self.stage) if setpoints_fs is None else setpoints_fs)
 
@@ -285,6 +288,7 @@ class PhaseTracker:
         # (cycles), whole-cycle move], and the set-points acting on the delay lines now
         self._in_flight: deque = deque()
         self._acting = u.copy()
+        self._position = u.copy()  # the delay lines' positions (actuator_lag_steps > 0)
         self._awaiting = False  # a command was given and its reading has not come yet
         noisy = self.params.detector_noise >= self.params.noisy_threshold
         self._window_len = self._fit_window(noisy)
@@ -362,6 +366,8 @@ class PhaseTracker:
         else:
             self._hop = self._plan_hop()
             u = self._base + self._hold_dither() * self._excursion(self._tick)
+        if self.lag_gain is not None:  # a command that brings the lagging lines there in a step
+            u = self._position + (u - self._position) / self.lag_gain
         u = np.clip(u, -self.range_cycles, self.range_cycles)
         self._last_command = u
         self._awaiting = True
@@ -372,15 +378,22 @@ class PhaseTracker:
 
     def _reading_setpoints(self):
         """(set-points (cycles), whole-cycle move) that shaped the reading at ``self._step``:
-        the last command, or with latency the one in effect ``latency`` steps before."""
+        the last command, or with latency the one in effect ``latency`` steps before; with a
+        lag, where the delay lines got to on their way to it."""
         if not self.latency:
             hop, self._hop = self._hop, None
-            return self._last_command, hop
-        hop = None
-        while self._in_flight and self._in_flight[0][0] <= self._step - self.latency:
-            _, self._acting, moved = self._in_flight.popleft()
-            hop = moved if moved is not None else hop
-        return self._acting, hop
+            acting = self._last_command
+        else:
+            hop = None
+            while self._in_flight and self._in_flight[0][0] <= self._step - self.latency:
+                _, self._acting, moved = self._in_flight.popleft()
+                hop = moved if moved is not None else hop
+            acting = self._acting
+        if self.lag_gain is None:
+            return acting, hop
+        for _ in range(min(self._gap, 100)):  # (the steps between readings: the newest command)
+            self._position = self._position + self.lag_gain * (acting - self._position)
+        return self._position, hop
 
     def _plan_hop(self):
         """A whole-cycle move of one stage's set-point now, if one is due: (stage, cycles)."""
@@ -1057,6 +1070,7 @@ class PhaseTracker:
         self._base = self._base * ratio
         self._last_command = self._last_command * ratio
         self._acting = self._acting * ratio
+        self._position = self._position * ratio
         for entry in self._in_flight:
             entry[1] = entry[1] * ratio
         self._history = deque(

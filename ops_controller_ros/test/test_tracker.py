@@ -273,13 +273,15 @@ def test_whole_cycle_moves_on_a_model_off_in_wavelength_are_not_taken_for_knots(
         assert abs(tracker.calibration.wavelength_nm - 1009.4) < 0.003 * 1009.4
 
 
-def _latency_run(seed: int, latency: int, told: bool, steps: int = 150) -> np.ndarray:
-    """Hard mode on a rig whose commands act ``latency`` steps late; the tracker's model has
-    that latency if ``told``."""
-    rig = make_config(stage=5, mode="hard", split="test", latency_steps=latency)
+def _latency_run(seed: int, latency: int, told: bool, steps: int = 150, lag=0.0) -> np.ndarray:
+    """Hard mode on a rig whose commands act ``latency`` steps late (and whose delay lines
+    follow with a first-order ``lag``, steps); the tracker's model has the rig if ``told``."""
+    rig = make_config(
+        stage=5, mode="hard", split="test", latency_steps=latency, actuator_lag_steps=lag
+    )
     sim = BatchedSimulation(rig, num_envs=1, seed=seed)
     r = sim.reset(seed=seed)
-    model = rig if told else rig.replace(latency_steps=0)
+    model = rig if told else rig.replace(latency_steps=0, actuator_lag_steps=0.0)
     tracker = PhaseTracker(model, setpoints_fs=r.setpoints_fs[0], seed=seed)
     powers = []
     for _ in range(steps):
@@ -322,3 +324,13 @@ def test_told_of_an_8_bit_trace_it_holds_hard_mode():
     blind = [_digitized_run(seed, False).mean() for seed in (3, 5)]
     assert min(told) > 0.95, told
     assert np.mean(told) > np.mean(blind) + 0.03, (told, blind)
+
+
+def test_told_the_actuators_lag_it_holds_hard_mode():
+    """A delay line that takes a step to follow (actuator_lag_steps=1: 63 % of a move in a step)
+    took the untold tracker to 0.54 (hard, 4 episodes); told it, the tracker matches each reading
+    to where the lines got and commands past the target so that they get there."""
+    told = _latency_run(7, 0, told=True, lag=1.0)
+    blind = _latency_run(7, 0, told=False, lag=1.0)
+    assert told[-50:].min() > 0.95, told[-50:].min()
+    assert told[-50:].mean() > blind[-50:].mean() + 0.2, (told[-50:].mean(), blind[-50:].mean())
