@@ -261,6 +261,7 @@ class PhaseTracker:
 
     def __init__(self, model, params: TrackerParams | None = None, setpoints_fs=None, seed=None):
         from ops_sim_ros.physics import stacker_from_config
+        from ops_sim_ros.rig import lag_gain
 
         self.model = model
         self.stage = int(model.stage)
@@ -274,7 +275,7 @@ class PhaseTracker:
         self.latency = int(getattr(model, "latency_steps", 0))
         # ... and its delay lines' first-order response: a reading is matched to where they are
         lag = float(getattr(model, "actuator_lag_steps", 0.0))
-        self.lag_gain = 1.0 - float(np.exp(-1.0 / lag)) if lag > 0.0 else None
+        self.lag_gain = lag_gain(lag) if lag > 0.0 else None
         self._rng = np.random.default_rng(seed)
         self.reset(np.zeros(self.stage) if setpoints_fs is None else setpoints_fs)
 

@@ -47,18 +47,6 @@ LIMITS = {
 #: What a value of 0 means where it is allowed below the usual range (the error messages say it).
 IDEAL_ZERO = {"dac_bits": "an ideal DAC", "trace_adc_bits": "an ideal trace"}
 
-#: The figures of the rig between controller and optics (``evaluate --rig``, docs/physics.md).
-RIG_KEYS = (
-    "latency_steps",
-    "actuator_lag_steps",
-    "actuator_hysteresis",
-    "dac_bits",
-    "trace_adc_bits",
-    "trace_full_scale",
-    "trace_averages",
-    "detector_noise",
-)
-
 # The rig presets (``realism``): each fills these fields unless they are given. ``ideal`` is the
 # ideal stacker every figure before issue 30 was measured on; ``lab`` a typical lab's rig
 # (docs/physics.md, "Rig imperfections", gives each value's source).
@@ -83,6 +71,9 @@ REALISM_PRESETS = {
         detector_noise=0.002,
     ),
 }
+#: The figures of the rig between controller and optics (``evaluate --rig``, docs/physics.md):
+#: the presets' keys.
+RIG_KEYS = (*REALISM_PRESETS["ideal"], "detector_noise")
 
 # Each mode's initial delay errors and drift, after the authors' code (docs/physics.md, "Modes").
 # Initial error per stage: normal(0, initial_sigma_cycles) clipped at +- initial_clip_sigmas sigma,

@@ -21,6 +21,12 @@ import numpy as np
 HYSTERESIS_OPERATORS = 64
 
 
+def lag_gain(lag_steps: float) -> float:
+    """The share of the way to its drive that a first-order delay line of time constant
+    ``lag_steps`` covers in one step (1: no lag)."""
+    return 1.0 - float(np.exp(-1.0 / lag_steps)) if lag_steps > 0.0 else 1.0
+
+
 def quantize(x: np.ndarray, low: float, high: float, bits: int) -> np.ndarray:
     """``x`` rounded to the nearest of 2^bits levels spanning [low, high], clipped to it."""
     step = (high - low) / (2**bits - 1)
@@ -98,8 +104,7 @@ class Actuator:
         self.latency = int(config.latency_steps)
         self.half_travel = config.actuator_range_fs
         self.dac_bits = int(config.dac_bits)
-        lag = float(config.actuator_lag_steps)
-        self.gain = 1.0 if lag == 0.0 else 1.0 - float(np.exp(-1.0 / lag))
+        self.gain = lag_gain(config.actuator_lag_steps)
         self.hysteresis = float(config.actuator_hysteresis)
         self.radii = hysteresis_radii(self.half_travel)
         shape = (num_envs, config.stage)

@@ -154,10 +154,6 @@ class BatchedSimulation:
         self.last = self._measure(self.setpoints_fs.copy(), np.zeros(shape, bool), advance=False)
         return self.last
 
-    def _positions(self, setpoints: np.ndarray) -> np.ndarray | None:
-        """The delay lines' positions after one step on these set-points (None: ideal)."""
-        return None if self.actuator is None else self.actuator.move(setpoints)
-
     # ------------------------------------------------------------------ stepping
     def step_setpoints(self, setpoints_fs) -> StepResult:
         """Apply absolute set-points (B, N) in fs (clipped to +- actuator range) for one step."""
@@ -168,7 +164,7 @@ class BatchedSimulation:
         _clip(sp, -self.range_fs, self.range_fs, out=sp)
         self.setpoints_fs = sp
         self.step_count += 1
-        self.last = self._measure(sp, clipped, positions=self._positions(sp))
+        self.last = self._measure(sp, clipped)
         return self.last
 
     def step_increments(self, actions) -> StepResult:
@@ -183,17 +179,19 @@ class BatchedSimulation:
         _clip(sp, -self.range_fs, self.range_fs, out=sp)
         self.setpoints_fs = sp
         self.step_count += 1
-        self.last = self._measure(sp, clipped, positions=self._positions(sp))
+        self.last = self._measure(sp, clipped)
         return self.last
 
-    def _measure(
-        self, setpoints: np.ndarray, clipped: np.ndarray, advance=True, positions=None
-    ) -> StepResult:
-        """``positions``: the delay lines' (B, N) fs where they are not the set-points."""
-        if positions is None and self.actuator is not None:
-            positions = self.actuator.position.copy()
+    def _measure(self, setpoints: np.ndarray, clipped: np.ndarray, advance=True) -> StepResult:
+        """``advance``: a step (the noise and the rig's actuator move on), else a measurement
+        where things are (reset, place)."""
         applied = self.noise.sample(advance)
-        applied += setpoints if positions is None else positions  # (a fresh array: reused)
+        if self.actuator is None:
+            applied += setpoints  # the noise array is fresh: reuse it for the applied delays
+        elif advance:
+            applied += self.actuator.move(setpoints)
+        else:
+            applied += self.actuator.position
         true_energies, power = self.stacker.energies_and_power(applied)
         energies = true_energies
         gain, offset = self.config.detector_gain, self.config.detector_offset
