@@ -35,6 +35,7 @@ setup(
             "evaluate = ops_gym_bridge.evaluate:main",
             "benchmark = ops_gym_bridge.benchmark:main",
             "report = ops_gym_bridge.report:main",
+            "realism_sweep = ops_gym_bridge.realism_sweep:main",
         ],
     },
 )

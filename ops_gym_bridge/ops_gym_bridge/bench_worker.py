@@ -78,7 +78,9 @@ def _sigterm_to_interrupt(signum, frame):
 
 
 def env_overrides(spec: dict) -> dict[str, Any]:
-    return {"detector": spec["detector"], **(spec.get("env") or {})}
+    """The evaluation environment's OpsConfig fields: the detector, the rig (which the
+    controllers and the training runs know of) and the hidden overrides."""
+    return {"detector": spec["detector"], **(spec.get("rig") or {}), **(spec.get("env") or {})}
 
 
 # ------------------------------------------------------------------------------ evaluation
@@ -120,7 +122,7 @@ def rollout_controller(spec: dict, mode: str, split: str, seed: int) -> dict[str
     from .rollouts import rollout_controller as run_controller
 
     ev = spec["eval"]
-    nominal = make_config(stage=spec["stage"], detector=spec["detector"])
+    nominal = make_config(stage=spec["stage"], detector=spec["detector"], **(spec.get("rig") or {}))
     return run_controller(
         spec["controller"],
         spec.get("controller_params") or {},
@@ -224,6 +226,11 @@ def train_argv(spec: dict, work: Path, resume: bool, remaining: int) -> list[str
         *(spec.get("hyperparams") or []),
         f"checkpoint_freq={spec.get('save_every', 10_000)}",
     ]
+    rig = dict(spec.get("rig") or {})
+    if "realism" in rig:
+        argv += ["--realism", str(rig.pop("realism"))]
+    if rig:
+        argv += ["--rig", *(f"{k}={v}" for k, v in rig.items())]
     argv += ["--hyperparams", *overrides]
     return [*argv, "--resume"] if resume else argv
 

@@ -123,6 +123,9 @@ def plan(args) -> list[dict[str, Any]]:
     }
     if args.hyperparams_set != "paper":  # (runs stored before the option hold no key)
         common["hyperparams_set"] = args.hyperparams_set
+    rig = cli_args.resolve_rig(args.realism, args.rig)  # (checked by run first)
+    if rig:  # (nor before the rig)
+        common["rig"] = rig
     modes = args.modes or prof["modes"]
     algos = args.algos or prof["algos"]
     seeds = prof["seeds"] if args.seeds is None else args.seeds
@@ -452,6 +455,7 @@ def build_parser():
         help="observation set of the trained agents: rig (what a real stacker measures) or "
         "authors (the authors' CPS_env, with the actual delay-line lengths: the paper's Table 1)",
     )
+    cli_args.add_rig_arguments(p, "every controller and training run")
     p.add_argument(
         "--stage", type=cli_args.stage_type, help="stages N of Table 1 (default: the profile's)"
     )
@@ -503,6 +507,11 @@ def run(argv: list[str] | None = None) -> int:
         return 2
     assert args.detector in DETECTORS
     out = Path(args.out)
+    try:
+        args.rig_config = cli_args.resolve_rig(args.realism, args.rig)
+    except ValueError as exc:
+        print(f"[benchmark] error: {exc}", file=sys.stderr)
+        return 2
     if args.ray_address and not args.list:
         try:  # before anything is written
             check_address(args.ray_address)
@@ -521,6 +530,7 @@ def run(argv: list[str] | None = None) -> int:
         "detector": args.detector,
         "observation": args.observation,
         "hyperparams_set": args.hyperparams_set,
+        "rig": args.rig_config,
         "profile_settings": PROFILES[args.profile],
         "command_line": ["ros2", "run", "ops_gym_bridge", "benchmark", *(argv or sys.argv[1:])],
     }
@@ -531,9 +541,11 @@ def run(argv: list[str] | None = None) -> int:
         ("observation", "rig"),
         ("hyperparams_set", "paper"),
         ("detector", None),
+        ("rig", {}),
     ):
-        stored = previous.get(key, default) if previous else getattr(args, key)
-        if stored != getattr(args, key):
+        given = settings[key]
+        stored = previous.get(key, default) if previous else given
+        if stored != given:
             flag = "--" + key.replace("_", "-")
             print(f"[benchmark] error: {out} holds runs with {flag} {stored}", file=sys.stderr)
             return 2

@@ -16,7 +16,16 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
-from ops_sim_ros.config import DETECTORS, MAX_STAGE, MODES, SPLITS, OpsConfig
+from ops_sim_ros.config import (
+    DETECTORS,
+    MAX_STAGE,
+    MODES,
+    REALISMS,
+    RIG_KEYS,
+    SPLITS,
+    OpsConfig,
+    make_config,
+)
 
 #: The environment options and their defaults (the defaults of OpsConfig).
 ENV_DEFAULTS: dict[str, Any] = {
@@ -132,6 +141,38 @@ def add_key_value_argument(parser: argparse.ArgumentParser, *flags: str, help: s
     parser.add_argument(
         *flags, nargs="+", action="extend", default=[], metavar="KEY=VALUE", help=help
     )
+
+
+def add_rig_arguments(parser: argparse.ArgumentParser, told: str) -> None:
+    """``--realism PRESET`` and ``--rig KEY=VALUE ...``: the rig (docs/physics.md, "Rig
+    imperfections") that the simulator runs and ``told`` knows of."""
+    parser.add_argument(
+        "--realism",
+        choices=REALISMS,
+        help="the rig's preset (docs/physics.md, 'Rig imperfections'): ideal (the default) or "
+        f"lab; the simulator runs it and {told} is told of it",
+    )
+    add_key_value_argument(
+        parser,
+        "--rig",
+        help=f"figures of the rig that the simulator runs AND {told} is told of (e.g. "
+        "latency_steps=2 trace_adc_bits=8): " + ", ".join(RIG_KEYS),
+    )
+
+
+def resolve_rig(realism: str | None, items: Iterable[str] | None) -> dict[str, Any]:
+    """The OpsConfig fields of ``--realism`` and ``--rig``, checked as make_config checks them
+    (ValueError naming the figure and what it may be)."""
+    rig = parse_key_values(items, "--rig figure")
+    unknown = sorted(set(rig) - set(RIG_KEYS))
+    if unknown:
+        raise ValueError(
+            f"--rig {', '.join(unknown)}: not a figure of the rig; allowed: {', '.join(RIG_KEYS)}"
+        )
+    if realism is not None:
+        rig["realism"] = realism
+    make_config(**rig)
+    return rig
 
 
 def parse_key_value(text: str, what: str = "parameter") -> tuple[str, Any]:

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from ops_sim_ros.config import REALISMS, RIG_KEYS, SPLITS, make_config
+from ops_sim_ros.config import SPLITS, make_config
 from ops_sim_ros.observation import OBSERVATION_SETS
 from ops_sim_ros.threads import limit_blas_threads
 
@@ -93,7 +93,7 @@ def build_parser():
     p.add_argument(
         "--out",
         help="output directory (default: runs/eval/NAME_nSTAGE_MODE; NAME: the model "
-        "folder's or the controller's)",
+        "folder's or the controller's; NAME alone if it ends in _nSTAGE_MODE already)",
     )
     p.add_argument(
         "--continuous",
@@ -118,18 +118,7 @@ def build_parser():
         help="overrides of the simulated environment (OpsConfig fields, e.g. detector_noise=0.01 "
         "pulse_fwhm_fs=1200) that the controller is not told of",
     )
-    p.add_argument(
-        "--realism",
-        choices=REALISMS,
-        help="the rig's preset (docs/physics.md, 'Rig imperfections'): ideal (the default) or "
-        "lab; the simulator runs it and the controller is told of it",
-    )
-    cli_args.add_key_value_argument(
-        p,
-        "--rig",
-        help="figures of the rig that the simulator runs AND the controller is told of (e.g. "
-        "latency_steps=2 trace_adc_bits=8): " + ", ".join(RIG_KEYS),
-    )
+    cli_args.add_rig_arguments(p, "the controller")
     p.add_argument(
         "--observation",
         choices=OBSERVATION_SETS,
@@ -199,21 +188,11 @@ def _parse(items: list[str], what: str) -> dict[str, Any]:
 
 
 def resolve_rig(args) -> dict[str, Any]:
-    """The rig's figures that both the simulator and the controller know (--realism, --rig),
-    checked as make_config checks them."""
-    rig = _parse(args.rig, "--rig figure")
-    unknown = sorted(set(rig) - set(RIG_KEYS))
-    if unknown:
-        raise EvaluationError(
-            f"--rig {', '.join(unknown)}: not a figure of the rig; allowed: {', '.join(RIG_KEYS)}"
-        )
-    if args.realism is not None:
-        rig["realism"] = args.realism
+    """The rig's figures that both the simulator and the controller know (--realism, --rig)."""
     try:
-        make_config(**rig)
+        return cli_args.resolve_rig(args.realism, args.rig)
     except ValueError as exc:
         raise EvaluationError(str(exc)) from None
-    return rig
 
 
 def resolve_subject(args) -> Subject:
@@ -385,7 +364,8 @@ def _duration(seconds: float) -> str:
 
 def default_out(args, subject: Subject) -> Path:
     """Where results go without ``--out``: ``runs/eval/NAME_nSTAGE_MODE`` under the current
-    directory (``runs/`` is git-ignored at the repository root; a shipped model's tracked
+    directory, or ``runs/eval/NAME`` where NAME already ends in ``nSTAGE_MODE`` as the shipped
+    models' folders do (``runs/`` is git-ignored at the repository root; a shipped model's tracked
     ``eval/`` folder is never overwritten by accident)."""
     if args.model:
         from ops_controller_ros.policy_io import resolve_paths
@@ -393,7 +373,10 @@ def default_out(args, subject: Subject) -> Path:
         name = resolve_paths(args.model)[0].parent.name
     else:
         name = subject.name
-    return Path("runs") / "eval" / f"{name}_n{subject.stage}_{subject.mode}"
+    cell = f"n{subject.stage}_{subject.mode}"
+    if name == cell or name.endswith(f"_{cell}"):  # a model named for its cell: not twice
+        return Path("runs") / "eval" / name
+    return Path("runs") / "eval" / f"{name}_{cell}"
 
 
 def write_outputs(results: dict[str, Any], out: Path, plot: bool = True) -> list[Path]:

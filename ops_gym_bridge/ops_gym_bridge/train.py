@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from ops_sim_ros.config import make_config
+from ops_sim_ros.config import RIG_KEYS, make_config
 from ops_sim_ros.observation import OBSERVATION_SETS
 from ops_sim_ros.threads import limit_blas_threads
 
@@ -80,6 +80,7 @@ def build_parser():
     )
     _add_algorithm_arguments(p)
     cli_args.add_env_arguments(p)
+    cli_args.add_rig_arguments(p, "the policy (its training environments)")
     _add_budget_arguments(p)
     _add_run_arguments(p)
     return p
@@ -292,6 +293,7 @@ def build_metadata(
         detector=args.detector,
         max_episode_steps=args.episode_steps,
         observation_options=observation_options(args),
+        **args.rig_config,
     )
     history = list((previous or {}).get("history", []))
     history.append(
@@ -326,6 +328,7 @@ def build_metadata(
         "n_envs": args.n_envs,
         "obs_history": args.obs_history,
         "observation": args.observation,
+        "rig": args.rig_config,
         "reward": args.reward,
         "hyperparams_set": args.hyperparams_set,
         "continue_prob": args.continue_prob,
@@ -374,7 +377,12 @@ def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
 
     args = run.args
     cfg = make_config(
-        args.stage, args.mode, "test", detector=args.detector, episode_steps=args.episode_steps
+        args.stage,
+        args.mode,
+        "test",
+        detector=args.detector,
+        episode_steps=args.episode_steps,
+        **args.rig_config,
     )
 
     def evaluate(model) -> float:
@@ -446,6 +454,7 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         raise TrainError("--max-minutes must be > 0")
     if args.eval_freq < 0 or args.eval_episodes < 1:
         raise TrainError("--eval-freq must be >= 0 and --eval-episodes >= 1")
+    _resolve_rig(args, out, raw)
     if args.init_from:
         return _resolve_init(args, out, command_line, raw)
     if not args.resume:
@@ -496,6 +505,24 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         previous.get("hyperparams") or hp.load(args.algo, args.hyperparams_set), args
     )
     return TrainRun(args, command_line, out, params, previous)
+
+
+def _resolve_rig(args, out: Path, raw: list[str]) -> None:
+    """``args.rig_config``: the rig's OpsConfig fields (--realism, --rig); a resumed run
+    without them keeps its model's rig."""
+    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
+
+    try:
+        args.rig_config = cli_args.resolve_rig(args.realism, args.rig)
+    except ValueError as exc:
+        raise TrainError(str(exc)) from None
+    if args.rig_config or not args.resume or not ({"--realism", "--rig"}.isdisjoint(raw)):
+        return
+    try:
+        config = read_metadata(out).get("config") or {}
+    except PolicyLoadError:
+        return  # resolve_run says what is wrong with the stored run
+    args.rig_config = {k: config[k] for k in ("realism", *RIG_KEYS) if k in config}
 
 
 def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> TrainRun:
@@ -601,7 +628,7 @@ def build_env(run: TrainRun) -> None:
             namespaces=args.namespace,
             timeout_s=args.ros_timeout or None,
             episode_steps=args.episode_steps,
-            overrides={"detector": args.detector},
+            overrides={"detector": args.detector, **args.rig_config},
             observation_options=observation_options(args),
             continue_prob=args.continue_prob,
         )
@@ -695,7 +722,9 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         f"detector={args.detector} backend={args.backend} n_envs={args.n_envs} "
         f"obs_history={args.obs_history} observation={args.observation} reward={args.reward} "
         f"hyperparams_set={args.hyperparams_set} setpoint_window={args.setpoint_window:g} "
-        f"continue_prob={args.continue_prob:g} steps {run.start_steps} -> {total}, out={out}",
+        f"continue_prob={args.continue_prob:g} "
+        + "".join(f"{k}={v} " for k, v in sorted(args.rig_config.items()))
+        + f"steps {run.start_steps} -> {total}, out={out}",
         flush=True,
     )
     try:

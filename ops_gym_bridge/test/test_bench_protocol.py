@@ -119,3 +119,23 @@ def test_report_puts_two_observation_sets_side_by_side(tmp_path):
     td3_test = [ln for ln in text.splitlines() if ln.startswith("| easy | testing | TD3 |")]
     assert td3_test == ["| easy | testing | TD3 | 0.9541 ± 0.0177 | 0.9000 ± 0.0000 (n=1) | "
                         "0.2000 ± 0.0000 (n=1) |"]  # fmt: skip
+
+
+def test_the_rig_of_a_benchmark_reaches_training_evaluation_and_controllers(tmp_path):
+    """benchmark --realism / --rig: every run's spec holds the rig; training runs get it on
+    their command line, evaluations and the controllers' nominal model in their config."""
+    from ops_gym_bridge import benchmark
+
+    args = benchmark.build_parser().parse_args(
+        ["--profile", "smoke", "--algos", "td3", "--modes", "hard", "--controllers", "tracker",
+         "--extra-stages", "--realism", "lab", "--rig", "latency_steps=2"]
+    )  # fmt: skip
+    specs = benchmark.plan(args)
+    assert specs and all(s["rig"] == {"latency_steps": 2, "realism": "lab"} for s in specs)
+    train = next(s for s in specs if s["kind"] == "train")
+    argv = bench_worker.train_argv(train, tmp_path, resume=False, remaining=100)
+    assert argv[argv.index("--realism") + 1] == "lab"
+    assert argv[argv.index("--rig") + 1] == "latency_steps=2"
+    overrides = bench_worker.env_overrides(train)
+    assert overrides["latency_steps"] == 2 and overrides["realism"] == "lab"
+    assert benchmark.run(["--list", "--rig", "trace_adc_bits=0.5", "--out", str(tmp_path)]) == 2

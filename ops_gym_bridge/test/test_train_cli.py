@@ -342,3 +342,25 @@ def test_authors_observation_is_saved_and_refused_on_the_rig_set(tmp_path):
     ok = run("evaluate", out, "--episodes", 1, "--steps", 5, "--seeds", 0,
              "--out", tmp_path / "ev")  # fmt: skip
     assert ok.returncode == 0, ok.stdout + ok.stderr
+
+
+def test_the_rig_reaches_the_training_environments_and_a_resumed_run_keeps_it(tmp_path):
+    """--realism / --rig set the training environments' rig, are printed and saved in the
+    metadata (config and rig); --resume without them keeps the model's; a bad figure is
+    refused before training."""
+    out = tmp_path / "lab"
+    done = run(
+        "train", "--algo", "td3", "--stage", 2, "--mode", "easy", "--timesteps", 100,
+        "--realism", "lab", "--rig", "latency_steps=2", "--out", out, "--no-progress",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "latency_steps=2 realism=lab" in done.stdout
+    meta = read_metadata(out)
+    assert meta["rig"] == {"latency_steps": 2, "realism": "lab"}
+    assert meta["config"]["latency_steps"] == 2 and meta["config"]["trace_adc_bits"] == 8
+    again = run("train", "--resume", "--out", out, "--timesteps", 100, "--no-progress")
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert read_metadata(out)["config"]["latency_steps"] == 2
+    bad = run("train", "--out", tmp_path / "bad", "--timesteps", 10, "--rig", "dac_bits=40")
+    assert bad.returncode == 2 and "dac_bits must be 0 (an ideal DAC) or from 1 to 32" in bad.stderr
+    assert "Traceback" not in bad.stderr

@@ -43,6 +43,9 @@ LIMITS = {
     "trace_adc_bits": (0, 32),
     "trace_full_scale": (1e-6, 1e6),
     "trace_averages": (1, 10000),
+    # the source (ops_sim_ros.source): pulse-to-pulse energy noise and the burst's droop
+    "pulse_amplitude_noise": (0.0, 0.3),
+    "burst_envelope": (0.0, 0.9),
 }
 #: What a value of 0 means where it is allowed below the usual range (the error messages say it).
 IDEAL_ZERO = {"dac_bits": "an ideal DAC", "trace_adc_bits": "an ideal trace"}
@@ -59,6 +62,8 @@ REALISM_PRESETS = {
         trace_adc_bits=0,
         trace_full_scale=1.0,
         trace_averages=1,
+        pulse_amplitude_noise=0.0,
+        burst_envelope=0.0,
     ),
     "lab": dict(
         latency_steps=1,
@@ -68,6 +73,8 @@ REALISM_PRESETS = {
         trace_adc_bits=8,
         trace_full_scale=1.25,
         trace_averages=1,
+        pulse_amplitude_noise=0.01,
+        burst_envelope=0.2,
         detector_noise=0.002,
     ),
 }
@@ -158,6 +165,9 @@ class OpsConfig:
     trace_adc_bits: int = 0  # the trace's digitizer (0: ideal)
     trace_full_scale: float = 1.0  # the digitizer's full scale, normalized energy (clipped)
     trace_averages: int = 1  # acquisitions averaged per reading
+    # --- the source (ops_sim_ros.source); ideal by default
+    pulse_amplitude_noise: float = 0.0  # rms pulse-to-pulse energy noise, fraction (per step)
+    burst_envelope: float = 0.0  # droop of pulse energy from the burst's first to its last pulse
 
     # ----------------------------------------------------------------- derived quantities
     @property

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import DETECTORS, SPEED_OF_LIGHT_NM_PER_FS
+from .source import burst_amplitudes
 
 SECH_FWHM_FACTOR = 2.0 * np.arccosh(np.sqrt(2.0))  # FWHM of sech^2(t/t0) = 1.7627 t0
 
@@ -59,21 +60,28 @@ def input_coding(stage: int) -> list[tuple[str, int]]:
     return labels
 
 
-def geometry_matrices(stage: int, through: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Propagate the coded unit amplitudes through the stacker geometry.
+def geometry_matrices(
+    stage: int, through: int | None = None, amplitudes=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Propagate the coded input amplitudes through the stacker geometry.
 
     Returns ``(C_s, C_p)``, each (2^(N+1) - 1 time slots, 2^N delay patterns): the amplitude with
     which light of delay pattern b arrives in time slot m of the s port (the one the output
     polarizer passes) and of the p port, before the envelope and carrier factors. ``through``:
-    stop after that many stages (0: the coded input), for figures of the paths.
+    stop after that many stages (0: the coded input), for figures of the paths. ``amplitudes``
+    (2^N,): the input pulses' field amplitudes, earliest first (default: all 1). Light of
+    pattern b in time slot m comes from input slot m - b alone, so an amplitude scales entries.
     """
     n = int(stage)
     last = n if through is None else int(through)
     num_in = 2**n
     num_slots = 2 ** (n + 1) - 1
     amp = np.zeros((2, num_slots, num_in))  # (polarization s/p, time slot, pattern)
+    scale = np.ones(num_in) if amplitudes is None else np.asarray(amplitudes, dtype=np.float64)
+    if scale.shape != (num_in,):
+        raise ValueError(f"amplitudes must have shape ({num_in},), got {scale.shape}")
     for k, (pol, sign) in enumerate(input_coding(n)):
-        amp[0 if pol == "s" else 1, k, 0] = sign
+        amp[0 if pol == "s" else 1, k, 0] = sign * scale[k]
     inv_sqrt2 = 1.0 / np.sqrt(2.0)
     for j in range(1, last + 1):
         d = 2 ** (j - 1)
@@ -128,6 +136,11 @@ class PulseStacker:
         intensity of both polarizations (the authors' code).
     dtype:
         ``np.float32`` (fast, default) or ``np.float64`` (reference) for the big matrix product.
+    amplitudes:
+        Field amplitudes (2^N,) of the input pulses, earliest first (mean energy 1; see
+        :func:`ops_sim_ros.source.burst_amplitudes`); None: equal pulses. Unequal pulses cannot
+        stack perfectly: the power is then normalized by the highest one they reach (at zero
+        delay errors), and ``reachable_fraction`` holds that maximum over an even burst's.
 
     All delay arguments are delay *errors* in fs relative to the nominal 2^(j-1) T, shaped
     (batch, N) or (N,).
@@ -142,6 +155,7 @@ class PulseStacker:
         samples_per_slot: int = 8,
         detector: str = "polarizer",
         dtype: type = np.float32,
+        amplitudes=None,
     ) -> None:
         self.stage = int(stage)
         if self.stage < 1:
@@ -163,7 +177,7 @@ class PulseStacker:
         self.omega0 = 2.0 * np.pi / self.optical_period_fs  # rad / fs
         self.t0_fs = self.pulse_fwhm_fs / SECH_FWHM_FACTOR
 
-        c_s, c_p = geometry_matrices(n)
+        c_s, c_p = geometry_matrices(n, amplitudes=amplitudes)
         # Light only ever reaches odd time slots (every input pulse of an even slot is p-coded and
         # delayed by stage 1; each later stage moves by an even number of slots), so the output
         # window is the 2^N - 1 odd slots 1, 3, ..., 2^(N+1) - 3; even rows are zero.
@@ -191,6 +205,17 @@ class PulseStacker:
         self._energy_scale = self.t0_fs / self.input_energy
         self._power_scale = self.t0_fs / self.p_max
         self._prepare_fast_paths(c_s, c_p, x, w)
+        # Input slot of each (pattern, output column) entry: where a pulse's own factor applies.
+        cols = np.arange(2 * self.num_slots) % self.num_slots
+        self._input_slot = np.clip(
+            (2 * cols[None, :] + 1) - patterns[:, None], 0, self.num_patterns - 1
+        )
+        self.reachable_fraction = 1.0
+        if amplitudes is not None:
+            # The reachable maximum: every path in phase, at zero delay errors.
+            self.reachable_fraction = float(self._single(np.zeros((1, n)))[1][0])
+            self._power_scale /= self.reachable_fraction
+            self.p_max *= self.reachable_fraction
         spp = self.samples_per_slot
         width = max(spp / 8.0, 0.5)
         self.trace_bump = np.exp(-0.5 * ((np.arange(spp) - spp // 2) / width) ** 2).astype(
@@ -388,6 +413,28 @@ class PulseStacker:
         power *= self._power_scale
         return energies, power, rejected
 
+    def energies_and_power_of_pulses(
+        self, d: np.ndarray, factors: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`energies_and_power`, with input pulse k's field of env b multiplied by
+        ``factors[b, k]`` (B, 2^N): pulses that differ from step to step (the source's noise).
+        The power keeps this stacker's normalization (of the pulses without the factors)."""
+        batch = d.shape[0]
+        both = self._total
+        ct = self._ct_sp if both else self._ct_s
+        cols = ct.shape[1]
+        per_env = ct.astype(np.float64)[None] * factors[:, self._input_slot[:, :cols]]
+        g = self._pattern_factors(d).astype(np.float64)  # (2, K, B, P)
+        e = np.einsum("ckbp,bps->ckbs", g, per_env)
+        inten = e[0] ** 2 + e[1] ** 2  # (K, B, cols)
+        if both:
+            inten = inten[:, :, : self.num_slots] + inten[:, :, self.num_slots :]
+        k = self.quadrature_points
+        w = self._w.astype(np.float64)
+        energies = (w @ inten.reshape(k, -1)).reshape(batch, -1) * self._energy_scale
+        p_n = (w @ np.square(inten).reshape(k, -1)).reshape(batch, -1)
+        return energies, p_n.sum(axis=1) * self._power_scale
+
     def _intensity_at_nodes(self, d: np.ndarray, ct: np.ndarray) -> np.ndarray:
         """|E|^2 at the K quadrature nodes of every output slot: (K, B, S) (S doubled for s|p).
 
@@ -397,6 +444,16 @@ class PulseStacker:
         G[c, k, b, p] = {cos, sin}(w0 s_p) * sech(u_k - (s_p - m) / t0) for c = re, im, then
         E = G @ C^T as one (2 K B, P) x (P, S) real matrix product.
         """
+        g = self._pattern_factors(d)
+        k, batch, npat = g.shape[1:]
+        e = g.reshape(2 * k * batch, npat) @ ct  # ONE real GEMM for the whole batch
+        e = e.reshape(2, k, batch, ct.shape[1])
+        np.square(e, out=e)
+        return np.add(e[0], e[1], out=e[0])
+
+    def _pattern_factors(self, d: np.ndarray) -> np.ndarray:
+        """G (2, K, B, P): {2 cos, 2 sin}(w0 s_p) / (e^{u_k - c_p} + e^{c_p - u_k}), the carrier
+        and envelope of every delay pattern at every quadrature node (re, im)."""
         batch = d.shape[0]
         k = self.quadrature_points
         npat = self.num_patterns
@@ -430,10 +487,7 @@ class PulseStacker:
         g = np.empty((2, k, batch, npat), dtype=self.dtype)
         np.divide(cos2[None], den, out=g[0])
         np.divide(sin2[None], den, out=g[1])
-        e = g.reshape(2 * k * batch, npat) @ ct  # ONE real GEMM for the whole batch
-        e = e.reshape(2, k, batch, ct.shape[1])
-        np.square(e, out=e)
-        return np.add(e[0], e[1], out=e[0])
+        return g
 
     # ------------------------------------------------------------------ public helpers
     def power(self, delay_errors_fs) -> np.ndarray:
@@ -505,4 +559,5 @@ def stacker_from_config(config, dtype: type = np.float32) -> PulseStacker:
         samples_per_slot=config.samples_per_slot,
         detector=config.detector,
         dtype=dtype,
+        amplitudes=burst_amplitudes(config.stage, config.burst_envelope),
     )

@@ -87,8 +87,11 @@ QUANTIZATION_NOISE_STEPS = 0.6
 
 def reading_noise_std(config) -> float:
     """The std of the error of a detected pulse energy that a controller told of this rig
-    should expect: the detector's noise (averaged) and the digitizer's rounding."""
+    should expect: the detector's noise (averaged), the digitizer's rounding and the source's
+    pulse-to-pulse noise (the stacked pulse's energy, the largest, moves by about its rms over
+    the square root of the pulse count)."""
     var = config.detector_noise**2 / config.trace_averages
+    var += config.pulse_amplitude_noise**2 / 2**config.stage
     if config.trace_adc_bits > 0:
         step = config.trace_full_scale / (2**config.trace_adc_bits - 1)
         var += (QUANTIZATION_NOISE_STEPS * step) ** 2

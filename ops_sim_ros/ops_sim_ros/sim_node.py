@@ -64,6 +64,8 @@ _RIG_OVERRIDES = (
     ("trace_adc_bits", "bits of the trace's digitizer (0: ideal)"),
     ("trace_full_scale", "the digitizer's full scale, normalized pulse energy"),
     ("trace_averages", "traces averaged per reading"),
+    ("pulse_amplitude_noise", "rms pulse-to-pulse energy noise of the source, fraction"),
+    ("burst_envelope", "energy droop from the burst's first pulse to its last, fraction"),
 )
 _INT_RIG_FIELDS = ("latency_steps", "dac_bits", "trace_adc_bits", "trace_averages")
 

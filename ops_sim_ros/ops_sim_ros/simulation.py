@@ -5,7 +5,8 @@ reset), the hidden delay-line offsets (the initial delay error plus its random w
 :mod:`ops_sim_ros.noise`) and the step count of the current episode. Every step: set-points
 (clipped to the actuator range) + offsets -> applied delays -> physics. On a rig that is not
 ideal (:mod:`ops_sim_ros.rig`: latency, DAC, hysteresis, lag) the set-points pass through the
-actuator to become delay-line positions first, and the detected energies through the digitizer.
+actuator to become delay-line positions first, and the detected energies through the digitizer;
+an imperfect source (:mod:`ops_sim_ros.source`) gives unequal or noisy input pulses.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from .config import OpsConfig
 from .noise import DelayNoise
 from .physics import power_to_reward, stacker_from_config
 from .rig import Actuator, Digitizer
+from .source import amplitude_noise
 
 _isfinite = np.isfinite
 _all = np.logical_and.reduce  # ndarray.all() without its Python wrapper
@@ -69,6 +71,8 @@ class BatchedSimulation:
         # The rig between commands and optics: None where ideal (the exact former arithmetic).
         self.actuator = None if config.ideal_actuator else Actuator(config, self.num_envs)
         self.digitizer = None if config.ideal_digitizer else Digitizer(config)
+        self._amplitude_noise = config.pulse_amplitude_noise
+        self._pulses_shape = (self.num_envs, 2**self.stage)
         if self.actuator is not None:
             self.actuator.reset(self.setpoints_fs)
 
@@ -192,7 +196,11 @@ class BatchedSimulation:
             applied += self.actuator.move(setpoints)
         else:
             applied += self.actuator.position
-        true_energies, power = self.stacker.energies_and_power(applied)
+        if self._amplitude_noise > 0.0:  # the source's pulses differ from step to step
+            factors = amplitude_noise(self.rng, self._pulses_shape, self._amplitude_noise)
+            true_energies, power = self.stacker.energies_and_power_of_pulses(applied, factors)
+        else:
+            true_energies, power = self.stacker.energies_and_power(applied)
         energies = true_energies
         gain, offset = self.config.detector_gain, self.config.detector_offset
         if gain != 1.0 or offset != 0.0:  # a detector off its calibration (power stays exact)
