@@ -19,6 +19,7 @@ import sys
 import time
 
 import numpy as np
+from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
 from ops_gym_bridge.continuous import lock_figures
 from ops_sim_ros.config import make_config
@@ -40,7 +41,7 @@ def run(mode: str, true_nm: float, steps: int, seed: int, params: TrackerParams)
     ctl = PhaseTracker(nominal, params, info["setpoints_fs"], seed=seed)
     power, estimate = np.empty(steps), np.empty(steps)
     for t in range(steps):
-        r = env.step_setpoints(ctl.command())
+        r = env.step_setpoints(next_command(ctl))
         ctl.observe(float(r.power[0]), r.pulse_energies[0])
         power[t] = r.power[0]
         estimate[t] = ctl.calibration.wavelength_nm

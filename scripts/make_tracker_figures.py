@@ -16,7 +16,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-from ops_controller_ros.controllers import make_controller
+from ops_controller_ros.controllers import make_controller, next_command
 from ops_sim_ros.config import make_config
 from ops_sim_ros.env import OpsEnv
 from ops_sim_ros.rendering import draw_trace
@@ -33,7 +33,7 @@ def run(mode, controller, seed, steps=200, stage=5):
     truth = [(info["delays_fs"] - info["setpoints_fs"]) / period]
     estimate = [np.full(stage, np.nan)]
     for _ in range(steps):
-        r = env.step_setpoints(ctl.command())
+        r = env.step_setpoints(next_command(ctl))
         ctl.observe(float(r.power[0]), r.pulse_energies[0])
         power.append(float(r.power[0]))
         traces.append(env.trace())

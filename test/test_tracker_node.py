@@ -68,6 +68,28 @@ def test_bad_parameter_stops_the_tracker_before_it_spins(procs):
     assert_no_traceback(tracker.output)
 
 
+@pytest.mark.parametrize(
+    "exe, value, allowed",
+    [
+        ("tracker", "latency_steps:=-2", "latency_steps must be -1 or int in [0, 1000]"),
+        (
+            "spgd",
+            "actuator_hysteresis:=1.0",
+            "actuator_hysteresis must be -1 or float in [0.0, 0.99]",
+        ),
+        ("tracker", "dac_bits:=33", "dac_bits must be -1 or int in [0, 32]"),
+        ("spgd", "realism:=perfect", "realism must be one of ideal, lab"),
+    ],
+)
+def test_a_bad_rig_stops_a_controller_before_it_spins(procs, exe, value, allowed):
+    """The controller nodes take the rig as the simulator does (issue 30): a value outside the
+    simulator's range stops the node before it spins, naming the parameter and the range."""
+    node = start(procs, exe, "ops_controller_ros", exe, value)
+    assert node.wait_exit(30) == 2
+    assert allowed in node.output, node.output
+    assert_no_traceback(node.output)
+
+
 def test_steps_that_ran_before_a_command_came_are_counted_over_dds(procs, observer):
     """A simulator free-running at 1 kHz steps again before many commands arrive: the tracker
     must learn of those steps from the DDS sequence numbers of ``ops/power`` (and log them). It
@@ -78,7 +100,9 @@ def test_steps_that_ran_before_a_command_came_are_counted_over_dds(procs, observ
     observer.wait_for_subscriber()
     tracker = start(procs, "tracker", "ops_controller_ros", "tracker", "seed:=4")
     tracker.wait_for("closing the loop", timeout=30)
-    line = tracker.wait_for(r"\((\d+) simulator steps before a command came\)", timeout=30)
+    line = tracker.wait_for(
+        r"\((\d+) simulator steps? passed before their command came\)", timeout=30
+    )
     assert int(line.group(1)) > 0
     tracker.signal(signal.SIGINT)
     assert tracker.wait_exit(15) == 0

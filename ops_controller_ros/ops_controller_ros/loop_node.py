@@ -26,6 +26,7 @@ from dataclasses import replace
 import numpy as np
 from ops_sim_ros.node_params import ParamSpec, declare_all
 from ops_sim_ros.observation import pulse_energies_from_trace
+from ops_sim_ros.rig_params import RIG_PARAMS, rig_config, rig_values
 from ops_sim_ros.ros_interface import (
     QOS_READINGS,
     QOS_RELIABLE,
@@ -61,6 +62,8 @@ LOOP_PARAMS = [
     ParamSpec("seed", -1, "random seed of the controller; -1 draws one", low=-1, high=2**31 - 1),
     controller_params.LOG_PERIOD,
     *loop_status.PARAMS,
+    # the rig the controller is told of, as the simulator node takes it (issue 30)
+    *RIG_PARAMS,
 ]
 #: The parameters a running loop applies at once; the others are fixed after start.
 LIVE_PARAMS = ("rate_hz", "timeout_s")
@@ -77,6 +80,8 @@ class ControllerLoopNode(Node):
         ]
         v = declare_all(self, specs, on_change=self._on_set_parameters)
         self.values = v
+        rig_config(v)  # a rig make_config refuses stops the node before it spins
+        self.rig = rig_values(v)  # the rig told (realism and the figures given)
         self.seed = None if v["seed"] < 0 else v["seed"]
         self._min_period = 1.0 / v["rate_hz"] if v["rate_hz"] > 0 else 0.0
         self._log_period = v["log_period_s"]
@@ -112,8 +117,9 @@ class ControllerLoopNode(Node):
         # Re-sends are due a few sample periods after a command (CommandTracker.resend_after).
         self.create_timer(0.01, self._watchdog)
         self.create_timer(self._log_period, self._log_progress)
+        told = " ".join(f"{k}={val}" for k, val in self.rig.items())
         self.get_logger().info(
-            f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)}"
+            f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)} (rig: {told})"
         )
 
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -140,6 +146,11 @@ class ControllerLoopNode(Node):
         """The controller for a simulator with these set-points (its stage) and trace layout,
         or None when it cannot be built (say why in the log)."""
         raise NotImplementedError
+
+    def nominal_model(self, **model):
+        """The nominal model (an OpsConfig) of ``model`` (stage, wavelength, ...) on the rig
+        the node was told of (``realism`` and the rig's figures); ParameterError if refused."""
+        return rig_config(self.values, **model)
 
     def progress(self) -> str:
         """The start of the progress log line (before ``: P_N/P_max = ...``)."""
@@ -303,7 +314,10 @@ class ControllerLoopNode(Node):
                 f"{self.progress()}: no reading for {silent_s:.1f} s (waiting for the simulator)"
             )
             return
-        late = f" ({self.late_steps} simulator steps before a command came)" * bool(self.late_steps)
+        late = ""
+        if self.late_steps:  # steps the simulator ran on old set-points, since the start
+            steps = "step" if self.late_steps == 1 else "steps"
+            late = f" ({self.late_steps} simulator {steps} passed before their command came)"
         late += f" ({self.revised_commands} commands revised)" * bool(self.revised_commands)
         power = f"P_N/P_max = {self.ctrl.last_power:.4f}"
         self.get_logger().info(f"{self.progress()}: {power}{self.progress_note()}{late}")

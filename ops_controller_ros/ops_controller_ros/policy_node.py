@@ -13,7 +13,10 @@ logs which one acts.
 The loop is every controller node's (:class:`~ops_controller_ros.loop_node.ControllerLoopNode`):
 readings paired with their command and their own step's trace by sequence number, re-sends, the
 steps between readings counted, ``ops/controller/status``. A model trained for another stage
-than the simulator runs stops the node with a clear error (exit code 1).
+than the simulator runs stops the node with a clear error (exit code 1). The rig (``realism`` and
+its figures, as the simulator node takes them) is every controller node's parameter: a policy is
+not built from a model, so the node checks the values and warns where they differ from the rig
+the model was trained on.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 from ops_sim_ros.node_params import ParamSpec
 from ops_sim_ros.observation import OBSERVATION_SETS
+from ops_sim_ros.rig_params import RIG_PARAM_KEYS
 from ops_sim_ros.ros_interface import NodeFatalError, ParameterError, run_node
 
 from .loop_node import ControllerLoopNode
@@ -82,6 +86,7 @@ class PolicyNode(ControllerLoopNode):
         super().__init__("ops_policy", PARAMS)
         policy, runner = _load(self.values["model"], self.values["observation"])
         self._policy, self._runner = policy, runner
+        self._check_rig(policy)
         if runner.spec.needs_applied_delays:
             self.use_applied_delays()
         if isinstance(runner, SwitchingRunner):
@@ -94,6 +99,22 @@ class PolicyNode(ControllerLoopNode):
             f"({policy.mode} mode, observation {runner.spec.describe()}) from "
             f"{policy.path}; waiting for the simulator"
         )
+
+    def _check_rig(self, policy) -> None:
+        """Say where the rig this node is told of differs from the one the model was trained
+        on (a learned policy is not built from a model: it acts on its observations alone)."""
+        trained = dict(policy.metadata.get("config") or {})
+        told = self.nominal_model(stage=policy.stage).to_dict()
+        keys = ("realism", *RIG_PARAM_KEYS)
+        diff = [
+            f"{k}={told[k]} (trained: {trained[k]})"
+            for k in keys
+            if k in trained and trained[k] != told[k]
+        ]
+        if diff:
+            self.get_logger().warning(
+                "this rig is not the one the model was trained on: " + ", ".join(diff)
+            )
 
     def build_controller(self, delays, samples_per_slot):
         try:

@@ -2,7 +2,8 @@
 
 The loop (pairing readings with commands, re-sending, restarts, the progress log) is
 :class:`~ops_controller_ros.loop_node.ControllerLoopNode`'s; this node declares SPGD's parameters
-and builds :class:`~ops_controller_ros.spgd.SpgdPid`.
+and builds :class:`~ops_controller_ros.spgd.SpgdPid` for the rig it is told of (``realism`` and the
+rig's figures, as the simulator node takes them: the latency is what SPGD uses).
 """
 
 from __future__ import annotations
@@ -62,7 +63,11 @@ class SpgdNode(ControllerLoopNode):
             raise ParameterError(str(exc)) from None
 
     def build_controller(self, delays, samples_per_slot):
-        return SpgdPid(delays.size, self._params, setpoints_fs=delays, seed=self.seed)
+        # the rig's latency, as evaluate tells it (controllers.make_controller)
+        latency = self.nominal_model(stage=delays.size).latency_steps
+        return SpgdPid(
+            delays.size, self._params, setpoints_fs=delays, seed=self.seed, latency=latency
+        )
 
     def progress(self) -> str:
         restarts = f", {self.ctrl.restarts} restarts" if self.ctrl.restarts else ""

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from ops_controller_ros.calibration import ModelCalibration
+from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
 from ops_sim_ros.config import make_config
 from ops_sim_ros.env import OpsEnv
@@ -18,7 +19,7 @@ def _run(true_overrides, steps, seed, params=None, mode="hard"):
     ctl = PhaseTracker(nominal, params or TrackerParams(), info["setpoints_fs"], seed=seed)
     power = []
     for _ in range(steps):
-        r = env.step_setpoints(ctl.command())
+        r = env.step_setpoints(next_command(ctl))
         ctl.observe(float(r.power[0]), r.pulse_energies[0])
         power.append(float(r.power[0]))
     return ctl, np.array(power)

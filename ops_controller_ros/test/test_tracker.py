@@ -3,21 +3,23 @@ retrieval from the controller's own known moves, locking from random starts, hol
 
 import numpy as np
 import pytest
-from ops_controller_ros.controllers import make_controller
+from ops_controller_ros.controllers import make_controller, next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
 from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 
-def run(mode, seed, steps=80, detector="polarizer", params=None, env=None):
-    """``env``: simulator settings the tracker is not told of (its model stays nominal)."""
+def run(mode, seed, steps=80, detector="polarizer", params=None, env=None, think=True):
+    """``env``: simulator settings the tracker is not told of (its model stays nominal);
+    ``think``: the loop calls ``think()`` before each step (evaluate's and the nodes' loop)."""
     cfg = make_config(stage=5, mode=mode, split="test", detector=detector)
     sim = BatchedSimulation(cfg.replace(**(env or {})), num_envs=1, seed=seed)
     r = sim.reset(seed=seed)
     tracker = PhaseTracker(cfg, params, setpoints_fs=r.setpoints_fs[0], seed=seed)
     powers = []
     for _ in range(steps):
-        r = sim.step_setpoints(tracker.command()[None, :])
+        command = next_command(tracker) if think else tracker.command()
+        r = sim.step_setpoints(command[None, :])
         tracker.observe(r.power[0], r.pulse_energies[0])
         powers.append(r.power[0])
     return np.array(powers), tracker, sim
@@ -50,7 +52,7 @@ def test_a_wrong_estimate_is_dropped_and_the_lock_recovered():
     tracker.estimate = tracker.estimate + np.array([0.3, -0.2, 0.25, 0.0, 0.4])  # corrupt it
     late = []
     for _ in range(40):
-        r = sim.step_setpoints(tracker.command()[None, :])
+        r = sim.step_setpoints(next_command(tracker)[None, :])
         tracker.observe(r.power[0], r.pulse_energies[0])
         late.append(r.power[0])
         assert np.all(np.abs(tracker.command()) <= sim.range_fs)  # never runs away
@@ -121,7 +123,7 @@ def test_a_lock_whose_readings_stay_low_is_dropped_and_acquired_again():
     tracker.calibration.gain = 20.0  # and a detector calibration run to its bound
     powers = []
     for _ in range(120):
-        r = sim.step_setpoints(tracker.command()[None, :])
+        r = sim.step_setpoints(next_command(tracker)[None, :])
         tracker.observe(r.power[0], r.pulse_energies[0])
         powers.append(r.power[0])
         if tracker.false_locks:
@@ -132,7 +134,7 @@ def test_a_lock_whose_readings_stay_low_is_dropped_and_acquired_again():
     assert not tracker.locked and tracker.calibration.gain == 1.0  # acquiring, nominal detector
     tracker.__class__ = PhaseTracker  # the same tracker, with its real fits from here on
     for _ in range(40):
-        r = sim.step_setpoints(tracker.command()[None, :])
+        r = sim.step_setpoints(next_command(tracker)[None, :])
         tracker.observe(r.power[0], r.pulse_energies[0])
     assert tracker.locked and r.power[0] > 0.95 and tracker.acquisitions == 1
 
@@ -148,7 +150,7 @@ def late_run(seed, tell: bool, steps=1200, late=0.2):
     rng = np.random.default_rng(seed)
     applied, powers = r.setpoints_fs[0], []
     for _ in range(steps):
-        command = tracker.command()
+        command = next_command(tracker)
         gap = 1
         while rng.random() < late:
             sim.step_setpoints(applied[None, :])
@@ -176,7 +178,7 @@ def test_steps_between_readings_keep_the_lock_when_commands_come_late():
 def test_registry_builds_it_and_bad_parameters_are_named():
     cfg = make_config(stage=3)
     assert isinstance(make_controller("tracker", cfg), PhaseTracker)
-    with pytest.raises(ValueError, match="window must be >= 2"):
+    with pytest.raises(ValueError, match=r"window must be in \[2, 64\]"):
         TrackerParams(window=1)
     with pytest.raises(ValueError, match="controller must be one of"):
         make_controller("pid", cfg)
@@ -209,7 +211,7 @@ def test_a_knot_of_one_stage_is_found_on_that_stage_within_a_few_readings(seed):
     sim.noise._update_bound_safe()
     after = []
     for _ in range(8):
-        r = sim.step_setpoints(tracker.command()[None, :])
+        r = sim.step_setpoints(next_command(tracker)[None, :])
         tracker.observe(r.power[0], r.pulse_energies[0])
         after.append(r.power[0])
     new = sim.noise.slope[0] / period
@@ -222,7 +224,7 @@ def test_a_knot_of_one_stage_is_found_on_that_stage_within_a_few_readings(seed):
 
 @pytest.mark.parametrize("seed", [5, 6])
 def test_a_deferred_knot_test_answers_first_and_revises_the_command_after(seed):
-    """``defer_knot_test`` (the node's default): the reading after the knot is answered by the
+    """``defer_knot_test`` (the default): the reading after the knot is answered by the
     plain fit at once, the knot test runs in ``think()``, and the command is revised when it
     changed the estimate: the knot is still found on its stage with no lock loss. A command
     asked again without a revision stays the same; one that ``think()`` revised differs."""
@@ -253,7 +255,7 @@ def test_a_deferred_knot_test_answers_first_and_revises_the_command_after(seed):
 def test_a_deferred_knot_test_nobody_ran_runs_before_the_next_reading():
     """A loop that never calls ``think()`` still gets the knot test, one reading later: the
     tracker holds extreme mode (the price of the late outcome, measured in docs/tracker.md)."""
-    powers, tracker, _ = run("extreme", 7, steps=400, params=TrackerParams(defer_knot_test=True))
+    powers, tracker, _ = run("extreme", 7, steps=400, think=False)
     after = powers[np.argmax(powers >= 0.95) :]
     assert tracker.knots >= 5
     assert np.mean(after >= 0.95) > 0.85, np.mean(after >= 0.95)
@@ -285,7 +287,7 @@ def _latency_run(seed: int, latency: int, told: bool, steps: int = 150, lag=0.0)
     tracker = PhaseTracker(model, setpoints_fs=r.setpoints_fs[0], seed=seed)
     powers = []
     for _ in range(steps):
-        r = sim.step_setpoints(tracker.command()[None, :])
+        r = sim.step_setpoints(next_command(tracker)[None, :])
         tracker.observe(r.power[0], r.pulse_energies[0])
         powers.append(r.power[0])
     return np.array(powers)
@@ -310,7 +312,7 @@ def _digitized_run(seed: int, told: bool) -> np.ndarray:
     assert (tracker.params.detector_noise > 0.002) == told  # 0.6 of a 1.25 / 255 step
     powers = []
     for _ in range(150):
-        r = sim.step_setpoints(tracker.command()[None, :])
+        r = sim.step_setpoints(next_command(tracker)[None, :])
         tracker.observe(r.power[0], r.pulse_energies[0])
         powers.append(r.power[0])
     return np.array(powers[-50:])

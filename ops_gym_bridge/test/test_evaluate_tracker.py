@@ -35,3 +35,19 @@ def test_a_rig_the_tracker_is_told_of_and_one_it_is_not(tmp_path, capsys):
     assert "--rig wavelength_nm: not a figure of the rig" in capsys.readouterr().err
     assert evaluate.run([*argv, "--rig", "latency_steps=-1", "--no-plot", "--quiet"]) == 2
     assert "latency_steps must be from 0 to 1000" in capsys.readouterr().err
+
+
+def test_the_default_output_folder_names_the_cell_once(tmp_path):
+    """A model folder named for its cell (models/n5_easy) is not named twice
+    (runs/eval/n5_easy_n5_easy, issue 33); a controller's folder gets the cell."""
+    from types import SimpleNamespace
+
+    model = tmp_path / "n5_easy"
+    model.mkdir()
+    (model / "model.zip").write_bytes(b"")
+    cell = SimpleNamespace(name="sac", stage=5, mode="easy")
+    assert evaluate.default_out(SimpleNamespace(model=str(model)), cell).name == "n5_easy"
+    other = SimpleNamespace(name="sac", stage=5, mode="hard")
+    assert evaluate.default_out(SimpleNamespace(model=str(model)), other).name == "n5_easy_n5_hard"
+    tracker = SimpleNamespace(name="tracker", stage=5, mode="hard")
+    assert evaluate.default_out(SimpleNamespace(model=None), tracker).name == "tracker_n5_hard"

@@ -21,8 +21,9 @@ from std_msgs.msg import Float32, Float32MultiArray
 from std_srvs.srv import Trigger
 
 from .command_inbox import CommandInbox
-from .config import DETECTORS, LIMITS, MAX_STAGE, MODES, REALISMS, SPLITS, make_config
+from .config import DETECTORS, LIMITS, MAX_STAGE, MODES, SPLITS, make_config
 from .node_params import ParamSpec, check_change, coerce, declare_all
+from .rig_params import RIG_PARAM_KEYS, RIG_PARAMS
 from .ros_interface import (
     QOS_RELIABLE,
     QOS_STATE,
@@ -53,21 +54,6 @@ _CONFIG_OVERRIDES = (
     ("actuator_range_cycles", "set-points are clipped to +- this, optical cycles"),
     ("detector_noise", "std of additive noise on detected pulse energies (normalized)"),
 )
-
-# The rig between controller and optics (issue 30, docs/physics.md "Rig imperfections"); -1
-# means "the realism preset's value".
-_RIG_OVERRIDES = (
-    ("latency_steps", "a command acts this many steps after the reading it answered"),
-    ("actuator_lag_steps", "first-order response of the delay lines, steps"),
-    ("actuator_hysteresis", "open-loop piezo hysteresis: loop width, fraction of the travel"),
-    ("dac_bits", "bits of the drive's DAC over the actuator range (0: ideal)"),
-    ("trace_adc_bits", "bits of the trace's digitizer (0: ideal)"),
-    ("trace_full_scale", "the digitizer's full scale, normalized pulse energy"),
-    ("trace_averages", "traces averaged per reading"),
-    ("pulse_amplitude_noise", "rms pulse-to-pulse energy noise of the source, fraction"),
-    ("burst_envelope", "energy droop from the burst's first pulse to its last, fraction"),
-)
-_INT_RIG_FIELDS = ("latency_steps", "dac_bits", "trace_adc_bits", "trace_averages")
 
 PARAMS = [
     ParamSpec(
@@ -122,23 +108,10 @@ PARAMS = [
         )
         for name, desc in _CONFIG_OVERRIDES
     ],
-    ParamSpec(
-        "realism",
-        "ideal",
-        "the rig's preset: ideal (an ideal stacker) or lab (a typical lab's rig)",
-        choices=REALISMS,
-    ),
-    *[
-        ParamSpec(
-            name,
-            -1 if name in _INT_RIG_FIELDS else -1.0,
-            desc + " (-1: the realism preset's)",
-            low=LIMITS[name][0],
-            high=LIMITS[name][1],
-            special=(-1,) if name in _INT_RIG_FIELDS else (-1.0,),
-        )
-        for name, desc in _RIG_OVERRIDES
-    ],
+    # The rig between controller and optics (issue 30, docs/physics.md "Rig imperfections"),
+    # declared once for the simulator and every controller node: -1 means "the realism
+    # preset's value".
+    *RIG_PARAMS,
     ParamSpec(
         "latency_ms",
         -1.0,
@@ -159,7 +132,7 @@ RATE_TOLERANCE = 0.9
 def config_from_params(values: dict):
     """The validated OpsConfig for a set of parameter values (ParameterError if impossible)."""
     overrides = {name: values[name] for name, _ in _CONFIG_OVERRIDES if values[name] >= 0.0}
-    overrides.update({name: values[name] for name, _ in _RIG_OVERRIDES if values[name] != -1})
+    overrides.update({name: values[name] for name in RIG_PARAM_KEYS if values[name] != -1})
     if values["latency_ms"] >= 0.0:
         overrides["latency_steps"] = round(values["latency_ms"] * values["rate_hz"] / 1000.0)
     try:

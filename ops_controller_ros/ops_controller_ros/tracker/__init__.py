@@ -1,0 +1,74 @@
+"""Model-based phase retrieval with drift tracking: a stacking controller that needs no training.
+
+The package: :mod:`.params` (the parameters, declared once), :mod:`.fit` (the fits as pure
+functions), :mod:`.acquisition` (the global search, the local re-lock), :mod:`.knots` (the knot
+test), :mod:`.period` (whole-cycle moves, period correction, calibration) and :mod:`.core` (the
+state machine, :class:`PhaseTracker`).
+
+The controller knows the stacker's physics (:class:`ops_sim_ros.physics.PulseStacker` built from
+the *nominal* configuration: stage, wavelength, pulse width, detector) and estimates the hidden
+delay errors x (one per stage, the part of each applied delay it did not command) from the stream
+of (commanded set-points u_k, detected slot energies and power y_k) pairs:
+
+    y_k ~ f(u_k + x_k),    x_k = x_t - (t - k) mu     (mu: each stage's drift per step)
+
+One reading does not determine x (different delay vectors give the same slot energies, and x and
+-x always do). The controller's own known moves are the phase diversity that makes the fit unique:
+it fits x to the last ``window`` readings, taken at different set-points, by Levenberg-Marquardt
+in units of optical cycles, and then commands u = -(x + mu) (the stacking point, with the drift
+fed forward) plus a small known excursion.
+
+* **Acquire** (no estimate): excursions of ``acquire_dither_cycles`` with random signs around the
+  present set-points; once ``window`` readings are in, a global search scores ``candidates``
+  random delay vectors over one period per stage against them and refines the ``refine`` best
+  (with each stage's drift as well where a static fit does not explain the window). The estimate
+  is accepted only when its residual is within ``residual_tolerance`` (plus the expected detector
+  noise); otherwise the controller keeps its set-points, keeps dithering and searches again (it
+  never moves on an estimate it does not trust).
+* **Track**: each reading re-fits the window as a path, a moving-horizon estimate: the errors at
+  every reading of the window and one drift per stage, most probable given the readings, a random
+  walk between readings (``walk_cycles`` per step; by default six times the model's jitter, so a
+  rig noisier than nominal is still followed) and the drift's present estimate
+  (``drift_prior_cycles``). The excursion is ``hold_dither_cycles`` on one stage at a time,
+  alternating in sign, so the window stays diverse and the sign of a small error stays visible.
+* **Recover**: ``misses`` fits in a row whose readings' residual exceeds ``lost_tolerance`` (a
+  knot of the drift, a jump; a single one keeps the prediction) switch to acquisition-sized
+  excursions around the prediction; after ``recover_readings`` readings the path is re-fitted to
+  them from the present drift, no drift, and each stage's drift reversed; if that fails for a
+  whole window, a global acquisition follows.
+* **Knots** (a stage's drift changes slope): a tracking fit that does not explain its readings
+  is tried again under one hypothesis per stage, knot position and side (``knot_*`` parameters).
+  With ``defer_knot_test`` (the default, in the node and in process) that test waits until the
+  command is out: :meth:`PhaseTracker.think` runs its ``knot_iterations`` (capped in real time by
+  ``knot_budget_ms`` in the node) and tells the caller when the
+  command it gave should be revised.
+
+Detector noise: the first two readings of an acquisition are taken at the same set-points; their
+difference measures the noise variance, which widens the residual tolerance and the tracking
+excursion (``detector_noise`` gives a floor when the noise is known); from a noise std of
+``noisy_threshold`` on, fits take ``noisy_window`` readings instead of ``window``.
+
+Assumptions, stated: the landscape is periodic in each delay with the optical period (the envelope
+walk-off of a few cycles against a pulse of hundreds of fs is ignored), the random walk of the
+delays over one window is small against the excursions, and detector noise is Gaussian with std
+``detector_noise`` (0: noise-free readings; a residual floor is kept anyway). A model that does not
+fit (a wrong wavelength or pulse width) raises the residual: the tolerance scales with the
+readings' own spread, and the controller then falls back to acquiring rather than running away.
+Set-points always move by the smallest step that reaches the target modulo one period and stay
+within the actuator range.
+"""
+
+from .core import FIT_VAR_FITS, FIT_VAR_MIN, PhaseTracker
+from .fit import PathFits
+from .params import NODE_FIELDS, TrackerParams, node_defaults, node_param_specs
+
+__all__ = [
+    "FIT_VAR_FITS",
+    "FIT_VAR_MIN",
+    "NODE_FIELDS",
+    "PathFits",
+    "PhaseTracker",
+    "TrackerParams",
+    "node_defaults",
+    "node_param_specs",
+]

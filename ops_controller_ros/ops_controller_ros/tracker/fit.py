@@ -1,0 +1,337 @@
+"""The tracker's fits as pure functions of the model (a stacker and its optical period) and the
+readings: predicted readings, their cost, the batched Levenberg-Marquardt of the global search
+(:func:`refine`) and the moving-horizon path fit (:func:`fit_paths`).
+
+Units: delays and errors in optical cycles of the model; ``u`` (K, N) the set-points of the K
+readings of a window, ``y`` (K, S + 1) the readings (slot energies and power), ``age`` (K,) each
+reading's steps before the latest.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+HOP_RATIO_PRIOR = 0.05  # prior std of the period error fitted over a window with a move
+
+
+@dataclass(frozen=True)
+class PathFits:
+    """M moving-horizon fits (:func:`fit_paths`): errors at the latest reading x (M, N), drift
+    (M, N), mean squared residual of the readings (M,), the path (M, K, N), the whole normalized
+    cost (M,) and the fitted period error r (M,; zeros when not fitted)."""
+
+    x: np.ndarray
+    drift: np.ndarray
+    data_cost: np.ndarray
+    path: np.ndarray
+    objective: np.ndarray
+    ratio: np.ndarray
+
+
+def wrap(cycles):
+    """Reduce to [-1/2, 1/2) cycle."""
+    return cycles - np.floor(cycles + 0.5)
+
+
+def predict(stacker, period_fs, x: np.ndarray, u: np.ndarray, age: np.ndarray, drift):
+    """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles; ``drift`` (N,)
+    shared or (M, N) per candidate."""
+    m, k = x.shape[0], u.shape[0]
+    drift = np.broadcast_to(drift, x.shape)
+    delays = u[None, :, :] + x[:, None, :] - age[None, :, None] * drift[:, None, :]
+    out = stacker.evaluate(delays.reshape(m * k, x.shape[1]) * period_fs)
+    pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
+    return pred.reshape(m, k, -1)
+
+
+def cost(stacker, period_fs, x, u, y, age, drift) -> np.ndarray:
+    """Mean squared residual (M,) of the readings for candidates x (M, N)."""
+    r = predict(stacker, period_fs, x, u, age, drift) - y[None]
+    return np.mean(r * r, axis=(1, 2))
+
+
+def _split(z: np.ndarray, drift, n: int):
+    """(errors, drift) of LM variables z: z itself with a fixed drift, else its two halves."""
+    return (z, drift) if drift is not None else (z[:, :n], z[:, n:])
+
+
+def refine(stacker, period_fs, x, u, y, age, drift, iterations: int):
+    """Batched Levenberg-Marquardt from starts x (M, N), a generator that yields after each
+    iteration and returns (x, cost) (``x, cost = yield from refine(...)``).
+
+    ``drift`` (N,) is held fixed; with ``drift=None`` each start's drift is fitted too (x is
+    then (M, 2N): the errors now and their drift per step)."""
+    m, dim = x.shape
+    n = u.shape[1]
+    h = 1e-3  # finite-difference step, cycles (or cycles per step)
+    lam = np.full(m, 1e-2)
+    steps = np.concatenate([np.zeros((1, dim)), h * np.eye(dim)])  # (dim + 1, dim)
+    c = None
+    for _ in range(iterations):
+        pts = (x[:, None, :] + steps[None]).reshape(m * (dim + 1), dim)
+        xs, ds = _split(pts, drift, n)
+        pred = predict(stacker, period_fs, xs, u, age, ds).reshape(m, dim + 1, -1)
+        r = pred[:, 0] - y.ravel()[None]  # (M, R)
+        jac = (pred[:, 1:] - pred[:, :1]) / h  # (M, dim, R)
+        c = np.mean(r * r, axis=1)
+        jtj = jac @ jac.transpose(0, 2, 1)
+        jtr = jac @ r[:, :, None]
+        diag = np.einsum("mii->mi", jtj)
+        a = jtj + (lam[:, None] * (diag + 1e-9))[:, :, None] * np.eye(dim)[None]
+        delta = -np.linalg.solve(a, jtr)[:, :, 0]
+        delta = np.clip(delta, -0.1, 0.1)  # at most a tenth of a cycle per iteration
+        trial = x + delta
+        xs, ds = _split(trial, drift, n)
+        new_cost = cost(stacker, period_fs, xs, u, y, age, ds)
+        better = new_cost < c
+        x = np.where(better[:, None], trial, x)
+        c = np.where(better, new_cost, c)
+        lam = np.where(better, lam * 0.3, lam * 4.0)
+        yield
+    return x, c
+
+
+class PathProblem(NamedTuple):
+    """What a path fit of M starts over one window holds fixed: the model, the window, the
+    weights, and the normal equations' parts that do not depend on the variables (the walk
+    between readings, linear, and the priors). The variables z (M, D): the path (K * N), the
+    drift (N), then r (if ``ratio``), then the knot's change (if knots)."""
+
+    stacker: object
+    period_fs: float
+    u: np.ndarray  # (K, N) set-points
+    u_centred: np.ndarray  # (K, N) set-points minus their mean (d phase / d r)
+    y: np.ndarray  # (K, S + 1) readings
+    ratio: bool  # r is fitted (variable nz)
+    nz: int  # K * N + N: the path and the drift
+    d: int  # all variables
+    r_sd: float  # std of a reading about the model
+    w_sd: float  # std of the random walk per step
+    walk: np.ndarray  # (M, (K - 1) N, D) the walk's residuals per unit of w_sd
+    walk_normal: np.ndarray  # (M, D, D) walk^T walk / w_sd^2
+    prior_w: np.ndarray  # (M, D) the priors' weights (1 / std^2)
+    prior_mean: np.ndarray  # (M, D)
+    offsets: np.ndarray  # (N + 1, N) finite-difference points of the Jacobian
+    blocks: np.ndarray  # (K, N) the path's indices per reading
+
+
+def _walk_rows(k: int, n: int, d: int, gaps: np.ndarray) -> np.ndarray:
+    """The walk between readings as rows over the variables: X_i - X_i-1 - gap mu, scaled to
+    std walk (gap: steps between the readings)."""
+    nz = k * n + n
+    walk = np.zeros(((k - 1) * n, d))
+    for i in range(1, k):  # X_i - X_i-1 - gap mu, std walk sqrt(gap)
+        rows = slice((i - 1) * n, i * n)
+        gap = gaps[i - 1]
+        walk[rows, i * n : (i + 1) * n] = np.eye(n) / gap**0.5
+        walk[rows, (i - 1) * n : i * n] = -np.eye(n) / gap**0.5
+        walk[rows, k * n : nz] = -np.eye(n) * gap**0.5
+    return walk
+
+
+def _add_knots(walk, prior_w, knots, gaps, k: int, n: int, d: int, knot_prior: float):
+    """The walk steps after each start's knot: minus gap * delta (the knot's change, the last
+    variable, with prior std ``knot_prior``)."""
+    walk = walk.copy()
+    for i in range(1, k):
+        after = np.flatnonzero(i >= np.asarray(knots[1]))
+        rows = (i - 1) * n + np.asarray(knots[0])[after]
+        walk[after, rows, d - 1] = -(gaps[i - 1] ** 0.5)
+    prior_w[:, d - 1] = 1.0 / knot_prior**2
+    return walk
+
+
+def path_problem(
+    stacker, period_fs, u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior
+):
+    """The :class:`PathProblem` of M starts (``drift`` (M, N) the starts' drifts, also the
+    prior's mean; ``drift_prior`` (M, N) its std)."""
+    k, n = u.shape
+    m = drift.shape[0]
+    d = k * n + n + (1 if ratio else 0) + (0 if knots is None else 1)
+    nz = k * n + n
+    gaps = np.maximum(age[:-1] - age[1:], 1.0)  # steps between consecutive readings
+    walk = np.broadcast_to(_walk_rows(k, n, d, gaps), (m, (k - 1) * n, d))
+    prior_w = np.zeros((m, d))
+    prior_w[:, k * n : nz] = 1.0 / drift_prior**2
+    if ratio:
+        prior_w[:, nz] = 1.0 / HOP_RATIO_PRIOR**2
+    if knots is not None:
+        walk = _add_knots(walk, prior_w, knots, gaps, k, n, d, knot_prior)
+    prior_mean = np.zeros((m, d))
+    prior_mean[:, k * n : nz] = drift.copy()
+    h = 1e-4
+    return PathProblem(
+        stacker=stacker,
+        period_fs=period_fs,
+        u=u,
+        u_centred=u - u.mean(axis=0),
+        y=y,
+        ratio=ratio,
+        nz=nz,
+        d=d,
+        r_sd=r_sd,
+        w_sd=w_sd,
+        walk=walk,
+        walk_normal=walk.transpose(0, 2, 1) @ walk / w_sd**2,
+        prior_w=prior_w,
+        prior_mean=prior_mean,
+        offsets=np.concatenate([np.zeros((1, n)), h * np.eye(n)]),
+        blocks=(np.arange(k)[:, None] * n + np.arange(n)[None]).reshape(k, n),
+    )
+
+
+def path_residuals(pb: PathProblem, z: np.ndarray, with_jacobian: bool):
+    """Predicted minus measured readings (M, K, R) and d prediction / d path (M, K, R, N) (None
+    without ``with_jacobian``); z: (M, D), any number M of the starts."""
+    k, n = pb.u.shape
+    m = z.shape[0]
+    h = pb.offsets[1, 0]
+    xs = z[:, : k * n].reshape(m, k, n)
+    pts = pb.u[None] + xs + (z[:, pb.nz, None, None] * pb.u_centred[None] if pb.ratio else 0.0)
+    if with_jacobian:
+        pts = pts[:, :, None, :] + pb.offsets[None, None]  # (M, K, N + 1, N)
+    out = pb.stacker.evaluate(pts.reshape(-1, n) * pb.period_fs)
+    pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
+    if not with_jacobian:
+        return pred.reshape(m, k, -1) - pb.y[None], None
+    pred = pred.reshape(m, k, n + 1, -1)
+    jac_k = (pred[:, :, 1:] - pred[:, :, :1]).transpose(0, 1, 3, 2) / h  # M, K, R, N
+    return pred[:, :, 0] - pb.y[None], jac_k
+
+
+def path_objective(pb: PathProblem, z, err, i) -> np.ndarray:
+    """The whole cost of starts i at z (len(i), D): readings, walk and priors."""
+    dz = z - pb.prior_mean[i]
+    walk_res = np.einsum("mrd,md->mr", pb.walk[i], z)
+    return (
+        np.einsum("mkr,mkr->m", err, err) / pb.r_sd**2
+        + np.einsum("mr,mr->m", walk_res, walk_res) / pb.w_sd**2
+        + np.einsum("md,md,md->m", dz, dz, pb.prior_w[i])
+    )
+
+
+def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
+    """J^T J (M, D, D) and J^T r (M, D) of the whole cost of starts i at z; no full Jacobian is
+    formed: the readings (block diagonal in the path, plus r), the walk and the priors."""
+    r_var, blocks, nz = pb.r_sd**2, pb.blocks, pb.nz
+    jtj = pb.walk_normal[i]
+    jtr = np.einsum("mde,me->md", jtj, z)
+    data_jtj = np.einsum("mkri,mkrj->mkij", jac_k, jac_k) / r_var  # (M, K, N, N)
+    jtj[:, blocks[:, :, None], blocks[:, None, :]] += data_jtj
+    jtr[:, blocks] += np.einsum("mkri,mkr->mki", jac_k, err) / r_var
+    if pb.ratio:  # d phase / d r = the centred set-points
+        g = np.einsum("mkrn,kn->mkr", jac_k, pb.u_centred)
+        cross = np.einsum("mkri,mkr->mki", jac_k, g) / r_var
+        jtj[:, blocks, nz] += cross
+        jtj[:, nz, blocks] += cross
+        jtj[:, nz, nz] += np.einsum("mkr,mkr->m", g, g) / r_var
+        jtr[:, nz] += np.einsum("mkr,mkr->m", g, err) / r_var
+    idx = np.arange(pb.d)
+    jtj[:, idx, idx] += pb.prior_w[i]
+    jtr += pb.prior_w[i] * (z - pb.prior_mean[i])
+    return jtj, jtr
+
+
+def _lm_path(pb: PathProblem, z, iterations: int, prune, deadline):
+    """Levenberg-Marquardt of every start of ``pb`` from z (M, D), in place; returns (cost,
+    data_cost) per start (see :func:`fit_paths` for ``prune`` and ``deadline``)."""
+    m = z.shape[0]
+    err, jac_k = path_residuals(pb, z, True)
+    act = np.arange(m)  # the starts still iterating
+    cost_ = path_objective(pb, z, err, act)
+    data_cost = np.mean(err * err, axis=(1, 2))
+    lam = np.full(m, 1e-3)
+    eye = np.eye(pb.d)
+    for it in range(iterations):
+        if it and deadline is not None and time.perf_counter() >= deadline:
+            break
+        if prune is not None and it == prune[0] and act.size > prune[1]:
+            act = np.sort(np.argsort(cost_)[: prune[1]])
+        za = z[act]
+        jtj, jtr = path_normal_equations(pb, za, err[act], jac_k[act], act)
+        diag = np.einsum("mii->mi", jtj)
+        a = jtj + (lam[act, None] * (diag + 1e-12))[:, :, None] * eye[None]
+        step = -np.linalg.solve(a, jtr[:, :, None])[:, :, 0]
+        trial = za + np.clip(step, -0.1, 0.1)
+        t_err, _ = path_residuals(pb, trial, False)
+        t_cost = path_objective(pb, trial, t_err, act)
+        better = t_cost < cost_[act]
+        lam[act] = np.where(better, lam[act] * 0.3, lam[act] * 10.0)
+        if better.any():  # the Jacobian again only where a start moved
+            moved = act[better]
+            z[moved] = trial[better]
+            cost_[moved] = t_cost[better]
+            data_cost[moved] = np.mean(t_err[better] ** 2, axis=(1, 2))
+            err[moved], jac_k[moved] = path_residuals(pb, z[moved], True)
+    return cost_, data_cost
+
+
+def fit_paths(
+    stacker,
+    period_fs,
+    x_now,
+    drift,
+    u,
+    y,
+    age,
+    iterations: int,
+    *,
+    r_sd: float,
+    w_sd: float,
+    drift_prior,
+    ratio=False,
+    knots=None,
+    knot_prior: float = 0.0,
+    prune=None,
+    path0=None,
+    deadline=None,
+) -> PathFits:
+    """Moving-horizon fits of a window for M starts at once (x_now, drift: (M, N); drift_prior:
+    (M, N) the drift prior's std), each its own Levenberg-Marquardt: the errors at every reading
+    X (K, N) and the drift mu (N,), most probable given the readings (std ``r_sd``), a random
+    walk between readings (X_k - X_k-1 - mu, std ``w_sd`` per step) and the drift's prior (mean:
+    the start's drift). Returns a :class:`PathFits`.
+
+    ``ratio``: also fit r, the model's period over the true one minus 1 (a reading's phase is
+    u + r (u - mean u) + X): identifiable when the window holds a whole-cycle move; the returned
+    x is the error as the model sees it (r applied at the latest reading).
+
+    ``knots``: (stage (M,), first (M,), change (M,)) a knot hypothesis per start: from reading
+    ``first`` of the window on, that stage drifts by mu + delta, delta one more variable (start
+    ``change``, prior std ``knot_prior``); the path before the knot keeps the drift mu and its
+    prior. The returned drift is the one after the knot.
+
+    ``prune``: (iterations, keep): after that many iterations only the ``keep`` starts of
+    lowest cost iterate on. ``path0``: (M, K, N) the starts' paths (by default straight back
+    from x_now by the drift). ``deadline`` (time.perf_counter()): no iteration starts after it
+    (at least one runs)."""
+    k, n = u.shape
+    m = x_now.shape[0]
+    pb = path_problem(
+        stacker, period_fs, u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior
+    )
+    if path0 is None:  # the straight path back from x_now by the drift
+        path0 = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
+    extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
+    change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
+    z = np.concatenate([path0.reshape(m, k * n), drift, extra, change], axis=1)
+    objective, data_cost = _lm_path(pb, z, iterations, prune, deadline)
+    nz = pb.nz
+    fitted_ratio = z[:, nz] if ratio else np.zeros(m)
+    x = z[:, (k - 1) * n : k * n] + fitted_ratio[:, None] * pb.u_centred[-1]
+    fitted_drift = z[:, k * n : nz].copy()
+    if knots is not None:
+        fitted_drift[np.arange(m), np.asarray(knots[0])] += z[:, pb.d - 1]
+    return PathFits(
+        x=x,
+        drift=fitted_drift,
+        data_cost=data_cost,
+        path=z[:, : k * n].reshape(m, k, n),  # the fitted errors at every reading
+        objective=objective,  # each fit's whole normalized cost (readings, walk, prior)
+        ratio=fitted_ratio,
+    )

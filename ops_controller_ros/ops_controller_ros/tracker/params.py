@@ -1,0 +1,318 @@
+"""The tracker's parameters, each declared once: default, meaning and allowed range.
+
+:class:`TrackerParams` is the one default set: ``evaluate --controller tracker``, the benchmark
+and the ``tracker`` node all start from it. A field declared with ``node=True`` is also a
+parameter of the node (``ops_tracker``), whose :class:`~ops_sim_ros.node_params.ParamSpec` is
+generated from the same declaration (:func:`node_param_specs`), so its name, description,
+range and default cannot drift apart from the tracker's.
+
+The one exception is a *real-time cap*, ``knot_budget_ms``: compute per reading in milliseconds
+of the wall clock. A controller without a clock (in process) has no use for it and runs with
+none (0); the node, which answers a free-running rig, caps its knot test at ``node_default``
+(4 ms). The work itself is fixed by counts that hold on any machine (``knot_iterations``,
+``search_units``), so the cap binds only where the machine is too slow for them
+(docs/tracker.md, "One tracker for the node and evaluate"). ``step_budget_ms``, the same kind of
+cap on the global search, is 0 in both: spread over readings the search failed in hard and
+extreme mode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+
+
+def _declare(
+    default,
+    doc: str,
+    low=None,
+    high=None,
+    *,
+    low_open: bool = False,
+    choices: tuple = (),
+    node: bool = False,
+    node_default=None,
+    optional: bool = False,
+):
+    """A field of :class:`TrackerParams` with its meaning and allowed values (``low`` / ``high``
+    inclusive unless ``low_open``; ``choices`` for a string; ``optional``: None is allowed too;
+    ``node``: also a parameter of the tracker node, there with ``node_default`` if given)."""
+    meta = dict(
+        doc=doc,
+        low=low,
+        high=high,
+        low_open=low_open,
+        choices=tuple(choices),
+        node=node,
+        node_default=node_default,
+        optional=optional,
+    )
+    return field(default=default, metadata=meta)
+
+
+def allowed_text(meta: dict) -> str:
+    """The allowed values of a declared field, as an error message states them."""
+    if meta["choices"]:
+        return " or ".join(meta["choices"])
+    low, high = meta["low"], meta["high"]
+    if low is not None and high is not None:
+        text = f"in {'(' if meta['low_open'] else '['}{low:g}, {high:g}]"
+    elif low is not None:
+        text = f"{'>' if meta['low_open'] else '>='} {low:g}"
+    else:
+        text = "any value"
+    return text + (" or None" if meta["optional"] else "")
+
+
+def _problem(name: str, meta: dict, value) -> str | None:
+    """Why ``value`` is not allowed for the declared field ``name``, or None."""
+    if value is None and meta["optional"]:
+        return None
+    if meta["choices"]:
+        ok = value in meta["choices"]
+    else:
+        low, high = meta["low"], meta["high"]
+        ok = not (low is not None and (value <= low if meta["low_open"] else value < low))
+        ok = ok and not (high is not None and value > high)
+    return None if ok else f"{name} must be {allowed_text(meta)} (got {value!r})"
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    window: int = _declare(7, "readings per fit", 2, 64, node=True)
+    # On a noisy detector (noise std, assumed or measured, >= noisy_threshold) a fit takes
+    # max(window, noisy_window) readings: more readings average the noise, while a short window
+    # follows the drift's knots sooner (measured: docs/tracker.md, issue 20).
+    noisy_window: int = _declare(
+        10,
+        "readings per fit once the detector is found noisy (the longer of the two is used)",
+        2,
+        64,
+        node=True,
+    )
+    noisy_threshold: float = _declare(
+        0.005, "detector noise std from which the detector counts as noisy", 0.0, low_open=True
+    )
+    acquire_dither_cycles: float = _declare(
+        0.02, "excursion per stage while acquiring, cycles", 0.0, 0.25, low_open=True
+    )
+    hold_dither_cycles: float = _declare(
+        0.012, "excursion while tracking (its length over the stages)", 0.0, 0.25, node=True
+    )
+    hold_pattern: str = _declare(
+        "all",
+        "tracking excursion: all stages at once (Hadamard signs) or one at a time",
+        choices=("one", "all"),
+        node=True,
+    )
+    # A fast drift needs a stronger probe (a knot must show in the next reading): the excursion
+    # is at least this many times the fastest stage's estimated drift per step.
+    drift_dither_gain: float = _declare(
+        2.0, "the tracking excursion is at least this many times the fastest drift", 0.0, 10.0
+    )
+    candidates: int = _declare(512, "random delay vectors scored by the global search", 1)
+    refine: int = _declare(8, "best candidates refined by Levenberg-Marquardt", 1)
+    iterations: int = _declare(12, "LM iterations of a global refinement", 1)
+    track_iterations: int = _declare(3, "LM iterations per reading while tracking", 1)
+    walk_cycles: float | None = _declare(
+        None,
+        "random walk per step allowed, cycles (None: 6x the model's jitter)",
+        0.0,
+        low_open=True,
+        optional=True,
+    )
+    drift_prior_cycles: float = _declare(
+        0.004, "how far one window may move the drift estimate (std)", 0.0, low_open=True
+    )
+    noisy_drift_prior_cycles: float = _declare(
+        0.002, "... on a noisy detector (docs/tracker.md)", 0.0, low_open=True
+    )
+    # The fastest drift the tracker believes, cycles per step (a fit beyond is clipped): on a
+    # periodic landscape a drift near a cycle per step reads like none (seen: a stage's drift
+    # estimate run up to 1.0 by knot hypotheses on a model 2 % off; extreme drifts <= 0.015).
+    max_drift_cycles: float = _declare(
+        0.1, "the fastest drift believed, cycles per step", 0.0, 0.5, low_open=True
+    )
+    residual_tolerance: float = _declare(
+        1e-6, "mean squared residual that counts as a fit (to lock)", 0.0, low_open=True
+    )
+    # The least std of a reading about the model that the path fits assume (normalized
+    # energies), added to what the fits' own residuals show (the model's accuracy on a clean
+    # detector is ~1e-5): the readings' weight against the random walk and the drift prior.
+    fit_noise_floor: float = _declare(
+        3e-4, "least std of a reading about the model", 0.0, low_open=True
+    )
+    lost_tolerance: float = _declare(
+        1e-5, "mean squared residual of a tracking fit that counts as lost"
+    )
+    detector_noise: float = _declare(
+        0.0, "assumed detector noise std (normalized energies)", 0.0, 1.0, node=True
+    )
+    misses: int = _declare(3, "bad fits in a row before recovering", 1)
+    # Knots of the drift (a stage's slope changes): a tracking fit whose residual exceeds
+    # knot_tolerance (or whose path jumps, knot_walk_sigmas) is tried again under one hypothesis
+    # per stage, knot position (the window's last knot_readings steps) and side: from the knot
+    # on, that stage's drift changes by a variable with prior std knot_prior_cycles (0: never
+    # try); a hypothesis is taken if its whole cost plus knot_penalty is the lowest. The prior
+    # keeps the hypotheses off the mirror images of a change (a path that reads the same with
+    # the change's sign turned, at twice its size): extreme, seeds 1000 and 1001 x 3000 steps
+    # of scripts/tracker_knots.py, 96.0-96.5 % locked with 0.03, 97.6-97.8 % with 0.015.
+    knot_tolerance: float = _declare(
+        1e-6, "residual of a tracking fit that asks for the knot test", 0.0, low_open=True
+    )
+    knot_prior_cycles: float = _declare(
+        0.015, "prior std of a knot's change of drift (0: no knot test)", 0.0
+    )
+    knot_start_cycles: float = _declare(0.02, "the knot fits start this far off the prediction")
+    knot_readings: int = _declare(3, "a knot is looked for in the window's last readings", 1)
+    knot_iterations: int = _declare(
+        6, "LM iterations of the knot hypotheses per knot test", 1, 100, node=True
+    )
+    noisy_knot_iterations: int = _declare(12, "... on a noisy detector", 1)
+    # After knot_prune_after iterations only the knot_keep best hypotheses iterate on (0: all):
+    # the Jacobians of the losing hypotheses are most of the knot test's compute.
+    knot_prune_after: int = _declare(2, "iterations before the knot hypotheses are pruned", 0)
+    knot_keep: int = _declare(0, "knot hypotheses kept after pruning (0: all)", 0)
+    # A real-time cap on the knot test, ms (0: none): a rig steps on its own clock, and a knot
+    # test's outcome is worth most before the next step (the node: 4 ms; in process: none).
+    knot_budget_ms: float = _declare(
+        0.0,
+        "real-time cap on the knot test and the fits after it per reading, ms (0: none)",
+        0.0,
+        1000.0,
+        node=True,
+        node_default=4.0,
+    )
+    knot_walk_sigmas: float = _declare(
+        2.0, "a path step this far off the drift (walk stds) asks for the knot test"
+    )
+    knot_penalty: float = _declare(4.0, "a knot hypothesis wins if its cost + this is lowest")
+    # ... on a noisy detector (noise std >= noisy_threshold) the knot test fires on the noise
+    # far more often, and a hypothesis must win by this much (measured in docs/tracker.md)
+    noisy_knot_penalty: float = _declare(8.0, "... on a noisy detector", 0.0)
+    # Answer first, test for knots after: the command after a suspicious reading aims by the
+    # plain fit and the knot test runs once it is out (think()), its outcome acting from the
+    # next command. In real time a knot test (5-15 ms) does not fit before a 100 Hz rig's next
+    # step: done first, the command came a step late, exactly after the knots (docs/tracker.md).
+    defer_knot_test: bool = _declare(
+        True,
+        "true: answer a reading first and test it for a knot of the drift after",
+        node=True,
+    )
+    recover_readings: int = _declare(4, "readings after a failed fit before a local re-fit", 2)
+    acquire_drift: bool = _declare(True, "fit each stage's drift too when a static fit fails")
+    # The global search (about 26 units at N = 5: 4 of scoring, then Levenberg-Marquardt
+    # iterations) may be spread over readings, this many units per reading (0: all in the
+    # reading that starts it; the commands keep their known excursions meanwhile). Spread, it
+    # fits a window that is readings old and carries the estimate forward by the fitted drift,
+    # which failed in hard mode (seed 9803: 3-8 units per reading lost two of three episodes;
+    # docs/tracker.md, "One tracker for the node and evaluate").
+    search_units: int = _declare(
+        0, "units of the global search per reading (0: all in one reading)", 0, 10000, node=True
+    )
+    step_budget_ms: float = _declare(
+        0.0,
+        "real-time cap on the global search per reading, ms (0: none)",
+        0.0,
+        1000.0,
+        node=True,
+    )
+    calibrate: bool = _declare(True, "estimate the detector's gain and offset online")
+    calibrate_optics: bool = _declare(
+        False, "estimate wavelength and pulse width too (experimental)"
+    )
+    calibration_every: int = _declare(
+        25, "tracking readings between updates of wavelength and pulse width", 1
+    )
+    calibration_memory: float = _declare(
+        500.0, "readings over which the calibration statistics are kept", 1.0
+    )
+    # Readings without lock after which the detector's gain and offset go back to nominal: a fit
+    # to a wrong estimate, or to readings that did not belong together (a starved machine), must
+    # not keep the tracker from ever locking again (seen: gain 0.56 on a true 1.0).
+    calibration_reset_after: int = _declare(
+        500, "readings without lock before the detector calibration goes back to nominal", 1
+    )
+    # A "lock" whose readings stay below false_lock_power for false_lock_readings in a row is no
+    # lock: the estimate is dropped, the detector calibration goes back to nominal and the
+    # tracker acquires again (0: never). Seen over DDS in extreme mode: a wrong estimate that the
+    # detector gain's fit followed to its bound (gain 20 on a true 1.0), "locked" at P_N 0.02 for
+    # 20,000 readings.
+    false_lock_power: float = _declare(
+        0.5, "a lock whose readings stay below this is dropped", 0.0, 1.0
+    )
+    false_lock_readings: int = _declare(50, "... after this many readings in a row (0: never)", 0)
+    # Wavelength from known whole-cycle moves: every hop_every tracking readings one stage's
+    # set-point moves by hop_cycles periods of the model (the landscape repeats, so the lock
+    # stays where the model is right); a model period off by a fraction r moves that stage's
+    # phase by hop_cycles * r, which the path fits of the next readings measure (r is fitted
+    # with the path), and the wavelength is corrected by hop_gain of it per fit (0: no moves).
+    # A move waits for a clean lock (no knot in the window, a reading >= 0.98, the stage's drift
+    # < 0.005 cycles per step).
+    hop_every: int = _declare(
+        10,
+        "readings between whole-cycle moves that measure the wavelength (0: none)",
+        0,
+        100000,
+        node=True,
+    )
+    hop_cycles: int = _declare(2, "periods of a whole-cycle move", 1, 10)
+    hop_gain: float = _declare(
+        0.05, "share of a measured period error corrected per fit", 0.0, 1.0, low_open=True
+    )
+
+    def __post_init__(self):
+        for f in fields(self):
+            problem = _problem(f.name, f.metadata, getattr(self, f.name))
+            if problem:
+                raise ValueError(problem)
+        if self.false_lock_power >= 1.0:
+            raise ValueError(f"false_lock_power must be in [0, 1) (got {self.false_lock_power!r})")
+        if self.refine > self.candidates:
+            raise ValueError(f"refine must be in [1, candidates] (got {self.refine!r})")
+        if self.recover_readings > self.window:
+            raise ValueError(
+                f"recover_readings must be in [2, window] (got {self.recover_readings!r})"
+            )
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def declared(name: str) -> dict:
+    """The declaration (doc, low, high, ...) of the field ``name`` of TrackerParams."""
+    return TrackerParams.__dataclass_fields__[name].metadata
+
+
+#: The fields of TrackerParams that are parameters of the tracker node, in declaration order.
+NODE_FIELDS = tuple(f.name for f in fields(TrackerParams) if f.metadata.get("node"))
+
+
+def node_defaults() -> dict:
+    """The node's values of its TrackerParams fields: the defaults, except the real-time caps."""
+    base = TrackerParams()
+    out = {}
+    for name in NODE_FIELDS:
+        meta = declared(name)
+        out[name] = getattr(base, name) if meta["node_default"] is None else meta["node_default"]
+    return out
+
+
+def node_param_specs() -> list:
+    """The node's ParamSpecs of its TrackerParams fields, generated from the declarations."""
+    from ops_sim_ros.node_params import ParamSpec
+
+    specs = []
+    for name, default in node_defaults().items():
+        meta = declared(name)
+        specs.append(
+            ParamSpec(
+                name,
+                default,
+                meta["doc"],
+                low=meta["low"],
+                high=meta["high"],
+                low_exclusive=meta["low_open"],
+                choices=meta["choices"],
+            )
+        )
+    return specs

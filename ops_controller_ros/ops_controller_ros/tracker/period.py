@@ -1,0 +1,91 @@
+"""The model's period and calibration while tracking: whole-cycle moves (hops) that measure the
+wavelength, the period correction they give, and the online calibration of the detector (and,
+optionally, the optics) with the state re-expressed in the new cycles.
+
+Every ``hop_every`` tracking readings one stage's set-point moves by ``hop_cycles`` periods of the
+model (the landscape repeats, so the lock stays where the model is right); a model period off by
+a fraction r moves that stage's phase by ``hop_cycles * r``, which the path fits of the next
+readings measure (r is fitted with the path), and the wavelength is corrected by ``hop_gain`` of
+it per fit.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+MAX_HOP_RATIO = 0.05  # largest period error one fit may report (relative)
+HOP_POWER = 0.98  # a whole-cycle move waits for a reading at least this good
+HOP_MAX_DRIFT = 0.005  # ... and for a stage drifting slower than this (cycles per step)
+HOP_GAIN_MOVES = 20.0  # the period correction's gain halves after this many moves ...
+HOP_GAIN_FLOOR = 0.05  # ... and falls no lower than this share of hop_gain
+
+
+class PeriodCalibration:
+    """Hops, the period correction and the calibration of :class:`~.core.PhaseTracker` (a
+    mixin: it works on the tracker's state)."""
+
+    def _plan_hop(self):
+        """A whole-cycle move of one stage's set-point now, if one is due: (stage, cycles)."""
+        p = self.params
+        if (
+            not p.hop_every
+            or self._bad_fits
+            or self._knot_job is not None
+            or self._tick < self._hop_next
+        ):
+            return None
+        # only on a clean lock: not right after a knot of the drift, not on a low reading
+        if self._tick - self._knot_tick < self._window_len or not self.last_power >= HOP_POWER:
+            return None
+        j = self.hops % self.stage
+        if abs(self.drift[j]) >= HOP_MAX_DRIFT:  # a fast drift: its knots cost more than a hop
+            return None
+        k = -p.hop_cycles if self._base[j] > 0 else p.hop_cycles  # towards the middle
+        self._base[j] += k
+        self.hops += 1
+        self._hop_next = self._tick + p.hop_every
+        return j, k
+
+    def _correct_period(self, r: float) -> None:
+        """A window fit with a whole-cycle move found the model's period off by r (model over
+        true, minus 1): move the wavelength by hop_gain of it."""
+        r = float(np.clip(r, -MAX_HOP_RATIO, MAX_HOP_RATIO))
+        # A gain that falls with the moves made (an average of the measurements, not the last
+        # few): with a constant gain the estimate random-walked with its measurements' noise
+        # (docs/tracker.md, "Over DDS"; scripts/bench_tracker_wavelength.py measures it).
+        share = max(HOP_GAIN_MOVES / (HOP_GAIN_MOVES + self.hops), HOP_GAIN_FLOOR)
+        self.calibration.wavelength_nm /= 1.0 + self.params.hop_gain * share * r
+        self._adopt_optics()
+
+    def _adopt_optics(self) -> None:
+        """Take the calibration's wavelength and width into the model and re-express the
+        state (estimate, drift, set-points, the window's commands) in the new cycles."""
+        old_period = self.period_fs
+        self.stacker = self.calibration.stacker()
+        self.period_fs = self.calibration.period_fs
+        ratio = old_period / self.period_fs  # the same fs are this many new cycles per old one
+        latest = self._history[-1][0]
+        self.estimate = self.estimate + latest - latest * ratio  # same phase
+        self.drift = self.drift * ratio
+        self._base = self._base * ratio
+        self._last_command = self._last_command * ratio
+        self._acting = self._acting * ratio
+        self._position = self._position * ratio
+        for entry in self._in_flight:
+            entry[1] = entry[1] * ratio
+        self._history = deque(
+            ((h[0] * ratio, h[1], h[2]) for h in self._history), maxlen=self._window_len
+        )
+
+    def _calibrate(self, u: np.ndarray, path: np.ndarray) -> None:
+        """Feed the window's fit to the calibration; every ``calibration_every`` readings, move
+        the model's wavelength and pulse width and re-express the state in the new cycles."""
+        raw = self._window(raw=True)[1]
+        optics = self.params.calibrate_optics
+        self.calibration.observe(self.stacker, u, path, raw, self.period_fs, optics)
+        if not optics or self._tick % self.params.calibration_every:
+            return
+        if self.calibration.update_optics():
+            self._adopt_optics()
