@@ -12,7 +12,7 @@ cd "$ROOT"
 VENV="$ROOT/.venv"
 LOG_DIR="$ROOT/.setup-logs"
 ROS_DISTRO_DIR="${OPS_ROS_DIR:-/opt/ros/jazzy}"
-PACKAGES=(ops_sim_ros ops_controller_ros ops_gym_bridge)
+PACKAGES=(ops_sim_ros ops_controller_ros ops_gym_bridge ops_rig_ros)
 mkdir -p "$LOG_DIR"
 
 say() { printf '[setup] %s\n' "$*"; }

@@ -1,0 +1,59 @@
+"""The rig node's parameters, declared once (ParamSpec: type, range, description); docs/rig.md
+lists them from here. Everything about the instruments is in the rig YAML (``config``)."""
+
+from __future__ import annotations
+
+from ops_sim_ros.config import LIMITS
+from ops_sim_ros.node_params import ParamSpec
+
+PARAMS = [
+    ParamSpec(
+        "config",
+        "",
+        "path of the rig YAML: instruments, limits, calibration (docs/rig.md)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "rate_hz",
+        -1.0,
+        "readings per second (-1: the YAML's rate_hz)",
+        low=1.0,
+        high=1000.0,
+        special=(-1.0,),
+        read_only=True,
+    ),
+    ParamSpec(
+        "samples_per_slot",
+        8,
+        "trace samples per pulse slot in ops/intensity",
+        low=LIMITS["samples_per_slot"][0],
+        high=LIMITS["samples_per_slot"][1],
+        read_only=True,
+    ),
+    ParamSpec(
+        "reconnect_period_s",
+        1.0,
+        "time between attempts to reach an instrument that is gone",
+        low=0.05,
+        high=60.0,
+        read_only=True,
+    ),
+    ParamSpec("diagnostics_period_s", 1.0, "period of /diagnostics status", low=0.1, high=3600.0),
+    ParamSpec(
+        "park_timeout_s",
+        10.0,
+        "longest time the park on shutdown may take at the slew limit",
+        low=0.0,
+        high=600.0,
+        read_only=True,
+    ),
+]
+
+
+def markdown_table(params=PARAMS) -> str:
+    """The parameters as the Markdown table of docs/rig.md (a test keeps the two equal)."""
+    rows = ["| parameter | default | allowed | meaning |", "|---|---|---|---|"]
+    for p in params:
+        default = f'"{p.default}"' if isinstance(p.default, str) else f"{p.default}"
+        rows.append(f"| `{p.name}` | {default} | {p.allowed} | {p.description} |")
+    return "\n".join(rows) + "\n"

@@ -1,0 +1,139 @@
+"""The rig node end to end with real processes over DDS: ``simlab`` (simulated scope over
+SCPI/TCP, simulated piezo drives on pseudo-terminals), ``calibrate``, ``rig`` and
+``ops_controller_ros spgd`` closing the loop through pyvisa and pyserial; faults on the scope,
+bad commands, the watchdog, the park on SIGTERM, and bad parameters."""
+
+from __future__ import annotations
+
+import re
+import signal
+import time
+
+import numpy as np
+import pytest
+import yaml
+from ros_testing import assert_no_traceback, executable
+
+pytestmark = pytest.mark.integration
+
+LIMIT_LOW, LIMIT_HIGH = 0.0, 75.0  # simlab's rig YAML
+
+
+def _received(path) -> np.ndarray:
+    """(time, channel, volts) of every voltage the simulated piezos received."""
+    rows = [line.split() for line in path.read_text().splitlines() if line.strip()]
+    return np.array([[float(t), float(c), float(v)] for t, c, v in rows]).reshape(-1, 3)
+
+
+def _recent_power(observer, n=20) -> float:
+    values = observer.values("power")[-n:]
+    return float(np.mean(values)) if len(values) == n else 0.0
+
+
+def _send_scpi(port: int, command: str) -> None:
+    from ops_rig_ros.simlab.scope_server import send_scpi
+
+    send_scpi(port, command)
+
+
+def test_simlab_calibrate_rig_spgd_closes_the_loop_safely(procs, observer, tmp_path):
+    rig_yaml = tmp_path / "rig.yaml"
+    record = tmp_path / "received.txt"
+    lab = procs.start(
+        [
+            *executable("ops_rig_ros", "simlab"),
+            *("--stage", "3", "--mode", "medium", "--seed", "3", "--format", "WORD"),
+            *("--config-out", rig_yaml, "--record", record),
+        ],
+        name="simlab",
+    )
+    port = int(lab.wait_for(r"simlab ready: .*TCPIP::127\.0\.0\.1::(\d+)::SOCKET", 30).group(1))
+
+    cal = procs.start(
+        [*executable("ops_rig_ros", "calibrate"), "--ros-args", "-p", f"config:={rig_yaml}"],
+        name="calibrate",
+    )
+    assert cal.wait_exit(60) == 0, cal.output
+    assert "fs_per_volt" in yaml.safe_load(rig_yaml.read_text())["calibration"]
+
+    rig = procs.start(
+        [*executable("ops_rig_ros", "rig"), "--ros-args", "-p", f"config:={rig_yaml}"],
+        name="rig",
+    )
+    rig.wait_for("scope connected", 30)
+    observer.wait_count("power", 5, timeout=30)
+    assert observer.count("reward") == 0  # nothing only a simulator knows
+    spgd = procs.start(executable("ops_controller_ros", "spgd"), name="spgd")
+    observer.wait_until(
+        lambda: _recent_power(observer) >= 0.9, 60, "the rig's power >= 0.9 under spgd"
+    )
+    print(f"rig power under spgd (mean of the last 20 readings): {_recent_power(observer):.4f}")
+    layout = observer.messages["intensity"][-1][2].layout.dim
+    assert [d.label for d in layout] == ["slot", "sample"] and layout[0].size == 7
+
+    # Garbage from the scope: logged, the node keeps publishing.
+    for fault in ("NAN 3", "HEADER", "SHORT 2"):
+        _send_scpi(port, f":SIMulate:FAULt {fault}")
+        n = observer.count("power")
+        observer.wait_until(lambda n=n: observer.count("power") > n + 10, 20, "readings again")
+    rig.wait_for(r"bad reading: .*(yincrement is nan|short waveform|read failed)", 10)
+
+    # The scope gone for 2 s: the piezos hold, the node reconnects, the loop recovers.
+    paused_at = time.time()
+    _send_scpi(port, ":SIMulate:PAUSe 2")
+    rig.wait_for("scope connected", 30, count=2)
+    back_at = time.time()
+    n = observer.count("power")
+    observer.wait_until(lambda: observer.count("power") > n + 20, 20, "readings after the pause")
+    observer.wait_until(lambda: _recent_power(observer) >= 0.9, 20, "power >= 0.9 again")
+    got = _received(record)
+    held = got[(got[:, 0] > paused_at + 0.5 + 0.1) & (got[:, 0] < paused_at + 2.0 - 0.1)]
+    assert held.size == 0, f"voltages sent while the traces were stale: {held}"
+    assert back_at - paused_at < 10
+
+    # Bad commands: refused, nothing reaches the piezos from them.
+    spgd.stop()
+    for bad in ([1e9, 0.0, 0.0], [float("nan"), 0.0, 0.0], [0.0, 0.0]):
+        observer.send(bad)
+    rig.wait_for("refused .*delay command", 15)
+    got = _received(record)
+    assert np.all(np.isfinite(got[:, 2]))
+    assert got[:, 2].min() > LIMIT_LOW and got[:, 2].max() < LIMIT_HIGH  # never even clipped
+
+    # SIGTERM: park at the slew limit, exit cleanly.
+    rig.signal(signal.SIGTERM)
+    assert rig.wait_exit(30) == 0, rig.output
+    assert "parked the piezos" in rig.output
+    assert_no_traceback(rig.output)
+    got = _received(record)
+    np.testing.assert_allclose(got[-3:, 2], 0.0)  # the park voltages (simlab's park_volts)
+    assert got[:, 2].min() >= LIMIT_LOW and got[:, 2].max() <= LIMIT_HIGH
+    for ch in range(3):  # every move within the slew limit (200 V/s; steps of <= 2 ticks)
+        v = got[got[:, 1] == ch, 2]
+        assert np.all(np.abs(np.diff(v)) <= 200.0 * 0.04 + 1e-3)
+
+
+def test_rig_refuses_bad_parameters(procs, tmp_path):
+    none = procs.start(executable("ops_rig_ros", "rig"), name="rig_noconfig")
+    assert none.wait_exit(30) == 2
+    assert "config must be the path of a rig YAML" in none.output
+    assert_no_traceback(none.output)
+
+    no_limits = tmp_path / "rig.yaml"
+    no_limits.write_text(
+        yaml.safe_dump(
+            {
+                "stage": 2,
+                "scope": {"driver": "scpi_scope", "resource": "TCPIP::127.0.0.1::9::SOCKET"},
+                "actuators": [{"driver": "mdt69x", "port": "/dev/null", "channels": ["x", "y"]}],
+            }
+        )
+    )
+    for exe in ("rig", "calibrate"):
+        proc = procs.start(
+            [*executable("ops_rig_ros", exe), "--ros-args", "-p", f"config:={no_limits}"],
+            name=f"{exe}_nolimits",
+        )
+        assert proc.wait_exit(30) == 2, proc.output
+        assert re.search(r"limits is required", proc.output), proc.output
+        assert_no_traceback(proc.output)
