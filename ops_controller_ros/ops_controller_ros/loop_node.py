@@ -156,6 +156,9 @@ class ControllerLoopNode(Node):
         """The start of the progress log line (before ``: P_N/P_max = ...``)."""
         return f"reading {self.readings}"
 
+    def after_reading(self) -> None:
+        """Called after the controller took each reading (e.g. to report what it found)."""
+
     def progress_note(self) -> str:
         """What the progress log line says after the power (e.g. which policy acts)."""
         return ""
@@ -250,6 +253,7 @@ class ControllerLoopNode(Node):
             self.ctrl.observe(power, energies, steps=steps)
         self._commands.answered()
         self.readings += 1
+        self.after_reading()
         now = time.monotonic()
         self._last_reading_at = now
         self._status.observe(power, now)

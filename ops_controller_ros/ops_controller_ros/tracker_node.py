@@ -12,9 +12,10 @@ the trace's samples per slot come from the messages. The tracker's own parameter
 
 from __future__ import annotations
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ops_sim_ros.config import DETECTORS
 from ops_sim_ros.node_params import ParamSpec
-from ops_sim_ros.ros_interface import QOS_RELIABLE, ParameterError, run_node
+from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DIAGNOSTICS, ParameterError, run_node
 from std_msgs.msg import Float32MultiArray
 
 from .loop_node import ControllerLoopNode
@@ -49,6 +50,28 @@ class TrackerNode(ControllerLoopNode):
         self._pub_calibration = self.create_publisher(
             Float32MultiArray, TOPIC_CALIBRATION, QOS_RELIABLE
         )
+        self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self._latency_changes = 0
+
+    def after_reading(self) -> None:
+        """A latency the readings fit better than the told one (issue 30): said on the log
+        and on /diagnostics (WARN, told and measured steps) as soon as the tracker takes it."""
+        if self.ctrl.latency_changes == self._latency_changes:
+            return
+        self._latency_changes = self.ctrl.latency_changes
+        note = self.ctrl.latency_note
+        self.get_logger().warning(f"latency mismatch: {note}")
+        values = {"told_steps": self.ctrl.latency_told, "measured_steps": self.ctrl.latency}
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.WARN,
+            name=f"{self.get_name()}: latency",
+            message=note,
+            hardware_id="ops_tracker",
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
+        )
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._pub_diag.publish(msg)
 
     def build_controller(self, delays, samples_per_slot):
         try:
@@ -66,7 +89,12 @@ class TrackerNode(ControllerLoopNode):
         return (
             f"reading {self.readings} ({'locked' if self.ctrl.locked else 'acquiring'}; "
             f"model {est['wavelength_nm']:.1f} nm, {est['pulse_fwhm_fs']:.0f} fs, detector "
-            f"gain {est['detector_gain']:.3f} offset {est['detector_offset']:+.4f})"
+            f"gain {est['detector_gain']:.3f} offset {est['detector_offset']:+.4f}"
+            + (
+                f"; latency {self.ctrl.latency} steps, told {self.ctrl.latency_told})"
+                if self.ctrl.latency_changes
+                else ")"
+            )
         )
 
 

@@ -17,6 +17,7 @@ from ..calibration import ModelCalibration
 from . import fit
 from .acquisition import Acquisition
 from .knots import KnotJob, KnotTest
+from .latency_check import LatencyWatch
 from .params import TrackerParams
 from .period import PeriodCalibration
 
@@ -33,7 +34,7 @@ def _told_noise(params: TrackerParams, model) -> TrackerParams:
     return replace(params, detector_noise=noise) if noise > params.detector_noise else params
 
 
-class PhaseTracker(Acquisition, KnotTest, PeriodCalibration):
+class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
     """Model-based stacking controller (see the module docstring): reset / command / observe."""
 
     def __init__(self, model, params: TrackerParams | None = None, setpoints_fs=None, seed=None):
@@ -50,6 +51,11 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration):
         # The rig's latency, as the model says (issue 30): a command acts this many steps late,
         # so a reading is matched to the command in effect then, and a command aims that far.
         self.latency = int(getattr(model, "latency_steps", 0))
+        self.latency_told = self.latency
+        self.latency_note = None  # why the latency in use is not the told one
+        self.latency_changes = 0
+        self.latency_checks = 0
+        self.latency_costs = {}  # the last check's residual per candidate latency
         # ... and its delay lines' first-order response: a reading is matched to where they are
         lag = float(getattr(model, "actuator_lag_steps", 0.0))
         self.lag_gain = lag_gain(lag) if lag > 0.0 else None
@@ -68,7 +74,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration):
         self._acting = u.copy()
         self._position = u.copy()  # the delay lines' positions (actuator_lag_steps > 0)
         self._awaiting = False  # a command was given and its reading has not come yet
-        noisy = self.params.detector_noise >= self.params.noisy_threshold
+        noisy = self.params.detector_noise >= self.params.told_noisy_threshold
         self._window_len = self._fit_window(noisy)
         self._history: deque = deque(maxlen=self._window_len)
         self.estimate = None  # hidden delay errors now, cycles (None: not acquired; followed
@@ -100,6 +106,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration):
         self._knot_job = None  # the knot test think() is to run (defer_knot_test)
         self._revise = False  # think() changed the command given: command() gives it anew
         self.last_power = float("nan")
+        self._watch_reset()
 
     def _fit_window(self, noisy: bool) -> int:
         """Readings per fit: ``window``, or on a noisy detector the longer ``noisy_window``."""
@@ -149,6 +156,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration):
         u = np.clip(u, -self.range_cycles, self.range_cycles)
         self._last_command = u
         self._awaiting = True
+        self._watch_command(u)
         if self.latency:
             self._in_flight.append([self._step + 1, u.copy(), self._hop])
             self._hop = None
@@ -215,6 +223,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration):
         elif len(self._history) == self._window_len or self._search is not None:
             self._search_step()
         self._check_false_lock(float(power))
+        self._watch_reading(y)
         self._unlocked_readings = 0 if self.locked else self._unlocked_readings + 1
         if self._unlocked_readings >= self.params.calibration_reset_after:
             self._unlocked_readings = 0
@@ -296,9 +305,11 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration):
         return fit.refine(self.stacker, self.period_fs, x, u, y, age, drift, iterations)
 
     def _noisy(self) -> bool:
-        """A detector noise (assumed or measured) of at least ``noisy_threshold``."""
+        """A detector noise assumed of at least ``told_noisy_threshold``, or measured of at
+        least ``noisy_threshold``."""
         p = self.params
-        return max(p.detector_noise**2, self._noise_var or 0.0) >= p.noisy_threshold**2
+        told = p.detector_noise >= p.told_noisy_threshold
+        return told or (self._noise_var or 0.0) >= p.noisy_threshold**2
 
     def _reading_sd(self) -> float:
         """The std of a reading about the model that the path fits assume: ``fit_noise_floor``

@@ -90,7 +90,19 @@ class TrackerParams:
         node=True,
     )
     noisy_threshold: float = _declare(
-        0.005, "detector noise std from which the detector counts as noisy", 0.0, low_open=True
+        0.005,
+        "measured noise std from which the detector counts as noisy",
+        0.0,
+        low_open=True,
+    )
+    # ... and the assumed or told noise (detector_noise, the rig's digitizer and source): lower,
+    # for it is the detector's alone, while the repeated first reading also sees the delay lines
+    # move between the two steps (extreme mode's drift reads as 0.002-0.005 there).
+    told_noisy_threshold: float = _declare(
+        0.0015,
+        "assumed or told noise std from which the detector counts as noisy",
+        0.0,
+        low_open=True,
     )
     acquire_dither_cycles: float = _declare(
         0.02, "excursion per stage while acquiring, cycles", 0.0, 0.25, low_open=True
@@ -256,6 +268,22 @@ class TrackerParams:
         node=True,
     )
     hop_cycles: int = _declare(2, "periods of a whole-cycle move", 1, 10)
+    # A latency the tracker was not told, or a wrong one (issue 30): after this many readings in
+    # a row below latency_check_below, the last readings are re-paired with the commands under
+    # each latency up to latency_check_longest and the one they fit is taken (.latency_check).
+    latency_check_after: int = _declare(
+        20,
+        "readings in a row below latency_check_below before the latency is checked (0: never)",
+        0,
+        100000,
+        node=True,
+    )
+    latency_check_below: float = _declare(
+        0.95, "reading below which the latency check counts", 0.0, 1.0, low_open=True
+    )
+    latency_check_longest: int = _declare(
+        4, "longest latency the check tries, steps", 1, 100, node=True
+    )
     hop_gain: float = _declare(
         0.05, "share of a measured period error corrected per fit", 0.0, 1.0, low_open=True
     )

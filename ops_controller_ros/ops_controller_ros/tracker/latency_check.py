@@ -1,0 +1,154 @@
+"""Does the rig's latency match the one the tracker was told (issue 30)?
+
+A tracker told the wrong latency pairs each reading with the wrong command: its fits do not
+explain the window, it never locks, and nothing says why. The check re-pairs the last readings
+with the commands under each candidate latency and runs a small global search (random starts,
+then Levenberg-Marquardt; :mod:`.fit`) on each pairing: the latency whose pairing the model
+explains best, by a clear margin and within the fit tolerance, is the rig's. Pure functions; the
+tracker calls :func:`measure_latency` once it has gone ``latency_check_after`` readings without a
+lock, and again every as many readings while it stays unlocked.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from .fit import cost, refine
+
+#: A candidate wins if its residual is at most this share of the told latency's.
+MARGIN = 0.25
+#: Readings the check re-pairs (the latest): about two fit windows.
+CHECK_READINGS = 12
+
+
+def pair_readings(commands, readings, latency: int):
+    """(u (K, N), y (K, S + 1), age (K,)): each reading at step t with the newest command that
+    acts at or before t - ``latency``; ``commands``: (step it acts at without latency, set-points
+    in cycles), oldest first; ``readings``: (step, reading), oldest first. Readings made before
+    the first known command are left out."""
+    us, ys, steps = [], [], []
+    i, acting = 0, None
+    for step, y in readings:
+        while i < len(commands) and commands[i][0] <= step - latency:
+            acting = commands[i][1]
+            i += 1
+        if acting is not None:
+            us.append(acting)
+            ys.append(y)
+            steps.append(step)
+    if not us:
+        return None
+    steps = np.asarray(steps, dtype=np.float64)
+    return np.array(us), np.array(ys), steps[-1] - steps
+
+
+def _finish(generator):
+    """Run a :func:`.fit.refine` generator to its end; its return value."""
+    while True:
+        try:
+            next(generator)
+        except StopIteration as done:
+            return done.value
+
+
+def pairing_cost(stacker, period_fs, window, tolerance, rng, candidates=128, keep=4) -> float:
+    """The smallest mean squared residual that a global search finds for one pairing: static
+    errors first, then errors and a drift per stage from the best starts."""
+    u, y, age = window
+    n = u.shape[1]
+    start = rng.uniform(-0.5, 0.5, size=(candidates, n))
+    best = start[np.argsort(cost(stacker, period_fs, start, u, y, age, np.zeros(n)))[:keep]]
+    x, c = _finish(refine(stacker, period_fs, best, u, y, age, np.zeros(n), 8))
+    if c.min() <= tolerance:
+        return float(c.min())
+    z = np.concatenate([x, np.zeros_like(x)], axis=1)
+    _, c2 = _finish(refine(stacker, period_fs, z, u, y, age, None, 6))
+    return float(min(c.min(), c2.min()))
+
+
+def measure_latency(
+    stacker, period_fs, commands, readings, told: int, tolerance: float, rng, longest: int = 4
+):
+    """A generator, one candidate latency per step (``yield``), that returns (the latency the
+    readings fit, {candidate: residual}); the latency is None when no candidate other than
+    ``told`` fits clearly better (within ``tolerance`` and by :data:`MARGIN`)."""
+    costs = {}
+    for latency in range(max(longest, told + 2) + 1):
+        window = pair_readings(commands, readings, latency)
+        if window is not None and len(window[0]) >= 6:
+            costs[latency] = pairing_cost(stacker, period_fs, window, tolerance, rng)
+        yield
+    if told not in costs:
+        return None, costs
+    best = min(costs, key=costs.get)
+    if best != told and costs[best] <= tolerance and costs[best] <= MARGIN * costs[told]:
+        return best, costs
+    return None, costs
+
+
+class LatencyWatch:
+    """The latency check of :class:`~.core.PhaseTracker` (a mixin on the tracker's state):
+    commands and readings are kept; after ``latency_check_after`` readings in a row below
+    ``latency_check_below`` the check runs, one candidate per reading, and a latency the
+    readings clearly fit better than the told one is taken (``latency_note`` says so)."""
+
+    def _watch_reset(self) -> None:
+        self._commands_sent: deque = deque(maxlen=64)  # (step it acts at without latency, u)
+        self._readings_kept: deque = deque(maxlen=CHECK_READINGS)  # (step, reading)
+        self._dim_readings = 0
+        self._latency_job = None
+
+    def _watch_command(self, u: np.ndarray) -> None:
+        self._commands_sent.append((self._step + 1, u.copy()))
+
+    def _watch_reading(self, y: np.ndarray) -> None:
+        p = self.params
+        self._readings_kept.append((self._step, y))
+        if not p.latency_check_after:
+            return
+        if self._latency_job is not None:
+            try:
+                next(self._latency_job)
+            except StopIteration as done:
+                self._latency_job = None
+                self.latency_costs = done.value[1]
+                if done.value[0] is not None:
+                    self._take_latency(done.value[0])
+            return
+        dim = self.last_power < p.latency_check_below
+        self._dim_readings = self._dim_readings + 1 if dim else 0
+        if self._dim_readings >= p.latency_check_after:
+            self._dim_readings = 0
+            self.latency_checks += 1
+            self._latency_job = measure_latency(
+                self.stacker,
+                self.period_fs,
+                list(self._commands_sent),
+                list(self._readings_kept),
+                self.latency,
+                self._tolerance(),
+                self._rng,
+                p.latency_check_longest,
+            )
+
+    def _take_latency(self, latency: int) -> None:
+        """Pair readings with commands ``latency`` steps back from now on, and acquire anew."""
+        self.latency_note = (
+            f"the readings fit a latency of {latency} steps, not the {self.latency} it was told "
+            f"(rig model: {self.latency_told}); using {latency}"
+        )
+        self.latency = latency
+        self.latency_changes += 1
+        acting = [u for at, u in self._commands_sent if at <= self._step - latency]
+        if acting:
+            self._acting = acting[-1].copy()
+        self._in_flight = deque(
+            [at, u.copy(), None] for at, u in self._commands_sent if at > self._step - latency
+        )
+        self.estimate = None
+        self._search = None
+        self._recovering = None
+        self._bad_fits = 0
+        self._history.clear()
