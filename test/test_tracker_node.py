@@ -122,3 +122,38 @@ def test_a_knot_test_after_the_command_revises_it_over_dds(procs, observer):
     tracker.signal(signal.SIGINT)
     assert tracker.wait_exit(15) == 0
     assert_no_traceback(tracker.output)
+
+
+def test_a_latency_it_was_not_told_is_named_and_taken_over_dds(procs, observer):
+    """A rig one step late, a tracker told of none: within 50 readings the tracker says so on
+    its log and on /diagnostics (WARN, told and measured steps), takes the measured latency and
+    locks (issue 30)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    warnings = []
+
+    def on_diagnostics(msg):
+        warnings.extend(s for s in msg.status if s.name.endswith(": latency"))
+
+    observer.node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
+    start(procs, "sim", "ops_sim_ros", "sim", "stage:=5", "mode:=medium", "seed:=5",
+          "lockstep:=true", "latency_steps:=1")  # fmt: skip
+    observer.wait_for_subscriber()
+    tracker = start(procs, "tracker", "ops_controller_ros", "tracker", "seed:=5")
+    tracker.wait_for("closing the loop", timeout=30)
+    before = observer.count("power")
+    tracker.wait_for(
+        r"latency mismatch: the readings fit a latency of 1 steps, not the 0", timeout=120
+    )
+    assert observer.count("power") - before <= 60  # (50 readings and the command in flight)
+    observer.wait_until(lambda: warnings, timeout=10, what="the latency on /diagnostics")
+    values = {kv.key: kv.value for kv in warnings[0].values}
+    assert values == {"told_steps": "0", "measured_steps": "1"}
+
+    def locked():
+        p = observer.values("power")
+        return np.mean(p[-10:]) >= 0.95
+
+    observer.wait_until(locked, timeout=90, what="P_N/P_max >= 0.95 once the latency is taken")
+    tracker.signal(signal.SIGTERM)
+    assert tracker.wait_exit(15) == 0
