@@ -53,3 +53,15 @@ def test_the_told_latency_is_kept_and_the_check_can_be_switched_off():
     tracker, found_at, powers = _run(2, 1, "hard", 45, steps=80, params=off)
     assert found_at is None and tracker.latency_checks == 0  # told wrong, never checked
     assert powers[-20:].mean() < 0.5  # what the check is there for
+
+
+def test_taking_a_latency_drops_the_work_of_the_old_pairing():
+    """Seen over DDS: a deferred knot test of the old pairing, run after the window was
+    emptied, crashed the node. Taking a latency drops it; the tracker acquires anew."""
+    tracker, _, _ = _run(1, 1, "hard", 46, steps=60)
+    assert tracker.locked
+    tracker._knot_job = object()  # a knot test still to run (defer_knot_test)
+    tracker._take_latency(2)
+    assert tracker._knot_job is None and not tracker.locked and tracker.latency == 2
+    assert not tracker.think()
+    assert np.all(np.isfinite(next_command(tracker)))

@@ -150,5 +150,7 @@ class LatencyWatch:
         self.estimate = None
         self._search = None
         self._recovering = None
+        self._knot_job = None  # a deferred knot test of the old pairing: nothing left to test
+        self._revise = False
         self._bad_fits = 0
         self._history.clear()
