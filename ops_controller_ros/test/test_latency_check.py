@@ -22,7 +22,7 @@ def test_readings_pair_with_the_command_acting_that_many_steps_before():
     assert pair_readings(commands, readings, 5) is None
 
 
-def _run(rig_latency, told, mode, seed, steps=200, params=None):
+def _run(rig_latency, told, mode, seed, steps=150, params=None):
     sim = BatchedSimulation(make_config(5, mode, "test", latency_steps=rig_latency), 1, seed=seed)
     tracker = PhaseTracker(make_config(5, mode, "test", latency_steps=told), params, seed=seed)
     sim.reset(seed=seed)
