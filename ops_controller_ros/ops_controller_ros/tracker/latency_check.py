@@ -136,8 +136,8 @@ class LatencyWatch:
     def _take_latency(self, latency: int) -> None:
         """Pair readings with commands ``latency`` steps back from now on, and acquire anew."""
         self.latency_note = (
-            f"the readings fit a latency of {latency} steps, not the {self.latency} it was told "
-            f"(rig model: {self.latency_told}); using {latency}"
+            f"the readings fit a latency of {latency} steps, not the {self.latency} in use (the "
+            f"rig it was told of: {self.latency_told}); using {latency}"
         )
         self.latency = latency
         self.latency_changes += 1
