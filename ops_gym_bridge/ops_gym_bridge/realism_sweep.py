@@ -157,9 +157,10 @@ def plot(rows: list[dict], path: Path) -> None:
     )  # fmt: skip
     colors = dict(zip(subjects, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
     for i, mode in enumerate(modes):
+        here = [s for s in subjects if any(k[:2] == (s, mode) for k in by)]
         for j, (title, key, xs, x0) in enumerate(PANELS):
             ax = axes[i, j]
-            for s in subjects:
+            for s in here:
                 pts = [(x0, by.get((s, mode, "ideal")))]
                 for x in xs:
                     case = f"{x}{key}" if key.startswith("-") else f"{key}{x}"
@@ -175,15 +176,15 @@ def plot(rows: list[dict], path: Path) -> None:
             ax.set_ylim(0.0, 1.02)
             ax.grid(alpha=0.3)
         ax = axes[i, -1]
-        for k, s in enumerate(subjects):
+        for k, s in enumerate(here):
             r = by.get((s, mode, "lab"))
             if r is not None:
                 ax.bar(k, r["mean"], color=colors[s])
                 ax.plot(k, r["worst"], "kx")
-        ax.set_xticks(range(len(subjects)), subjects, rotation=30, fontsize=7)
+        ax.set_xticks(range(len(here)), here, rotation=20, fontsize=7)
         ax.set_title(f"{mode}: lab preset", fontsize=9)
         axes[i, 0].set_ylabel("final P_N / P_max")
-    axes[0, 0].legend(fontsize=7, loc="lower left")
+        axes[i, 0].legend(fontsize=7, loc="center right")
     fig.suptitle(
         "Mean (o, bars) and worst episode (x) against the rig's imperfections", fontsize=10
     )
