@@ -267,6 +267,17 @@ class TrackerParams:
         100000,
         node=True,
     )
+    # ... on a detector told noisy (told_noisy_threshold: the rig's digitizer, source and
+    # detector): its period fits wander, and the wavelength with them (lab preset, hard, one
+    # run of 6000 steps: 86 % of readings >= 0.95 with moves every 10 readings, 96 % without;
+    # docs/tracker.md, "Noisy from 0.0015")
+    noisy_hop_every: int = _declare(
+        0,
+        "readings between whole-cycle moves on a detector told noisy (0: none)",
+        0,
+        100000,
+        node=True,
+    )
     hop_cycles: int = _declare(2, "periods of a whole-cycle move", 1, 10)
     # A latency the tracker was not told, or a wrong one (issue 30): after this many readings in
     # a row below latency_check_below, the last readings are re-paired with the commands under

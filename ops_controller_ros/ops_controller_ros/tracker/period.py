@@ -29,12 +29,8 @@ class PeriodCalibration:
     def _plan_hop(self):
         """A whole-cycle move of one stage's set-point now, if one is due: (stage, cycles)."""
         p = self.params
-        if (
-            not p.hop_every
-            or self._bad_fits
-            or self._knot_job is not None
-            or self._tick < self._hop_next
-        ):
+        every = p.noisy_hop_every if p.detector_noise >= p.told_noisy_threshold else p.hop_every
+        if not every or self._bad_fits or self._knot_job is not None or self._tick < self._hop_next:
             return None
         # only on a clean lock: not right after a knot of the drift, not on a low reading
         if self._tick - self._knot_tick < self._window_len or not self.last_power >= HOP_POWER:
@@ -45,7 +41,7 @@ class PeriodCalibration:
         k = -p.hop_cycles if self._base[j] > 0 else p.hop_cycles  # towards the middle
         self._base[j] += k
         self.hops += 1
-        self._hop_next = self._tick + p.hop_every
+        self._hop_next = self._tick + every
         return j, k
 
     def _correct_period(self, r: float) -> None:
