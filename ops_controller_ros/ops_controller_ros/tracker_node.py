@@ -55,12 +55,16 @@ class TrackerNode(ControllerLoopNode):
 
     def after_reading(self) -> None:
         """A latency the readings fit better than the told one (issue 30): said on the log
-        and on /diagnostics (WARN, told and measured steps) as soon as the tracker takes it."""
+        and on /diagnostics (WARN, told and measured steps) as soon as the tracker takes it,
+        and on /diagnostics again with every progress line while it stands."""
         if self.ctrl.latency_changes == self._latency_changes:
             return
         self._latency_changes = self.ctrl.latency_changes
+        self.get_logger().warning(f"latency mismatch: {self.ctrl.latency_note}")
+        self._publish_latency()
+
+    def _publish_latency(self) -> None:
         note = self.ctrl.latency_note
-        self.get_logger().warning(f"latency mismatch: {note}")
         values = {"told_steps": self.ctrl.latency_told, "measured_steps": self.ctrl.latency}
         status = DiagnosticStatus(
             level=DiagnosticStatus.WARN,
@@ -84,6 +88,8 @@ class TrackerNode(ControllerLoopNode):
         return PhaseTracker(model, self._params, setpoints_fs=delays, seed=self.seed)
 
     def progress(self) -> str:
+        if self.ctrl.latency_changes:
+            self._publish_latency()
         est = self.ctrl.calibration.estimates()
         self._pub_calibration.publish(Float32MultiArray(data=[float(v) for v in est.values()]))
         return (
