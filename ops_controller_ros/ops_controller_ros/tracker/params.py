@@ -290,7 +290,7 @@ class TrackerParams:
         node=True,
     )
     latency_check_below: float = _declare(
-        0.95, "reading below which the latency check counts", 0.0, 1.0, low_open=True
+        0.5, "reading below which the latency check counts", 0.0, 1.0, low_open=True
     )
     latency_check_longest: int = _declare(
         4, "longest latency the check tries, steps", 1, 100, node=True
