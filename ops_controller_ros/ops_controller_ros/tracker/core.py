@@ -60,6 +60,8 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         lag = float(getattr(model, "actuator_lag_steps", 0.0))
         self.lag_gain = lag_gain(lag) if lag > 0.0 else None
         self._rng = np.random.default_rng(seed)
+        # the latency check's own stream: a check leaves the commands' random signs as they were
+        self._check_rng = self._rng.spawn(1)[0]
         self.reset(np.zeros(self.stage) if setpoints_fs is None else setpoints_fs)
 
     # ------------------------------------------------------------------ interface

@@ -129,7 +129,7 @@ class LatencyWatch:
                 list(self._readings_kept),
                 self.latency,
                 self._tolerance(),
-                self._rng,
+                self._check_rng,
                 p.latency_check_longest,
             )
 
