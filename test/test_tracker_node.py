@@ -117,7 +117,8 @@ def test_a_knot_test_after_the_command_revises_it_over_dds(procs, observer):
     observer.wait_for_subscriber()
     tracker = start(procs, "tracker", "ops_controller_ros", "tracker", "seed:=8")
     tracker.wait_for("closing the loop", timeout=30)
-    line = tracker.wait_for(r"reading \d+ \(locked;.*\((\d+) commands revised\)", timeout=90)
+    # (on a loaded machine the node's 4 ms cap can stop knot tests for a while: up to 150 s)
+    line = tracker.wait_for(r"reading \d+ \(locked;.*\((\d+) commands revised\)", timeout=150)
     assert int(line.group(1)) > 0
     tracker.signal(signal.SIGINT)
     assert tracker.wait_exit(15) == 0
