@@ -115,9 +115,12 @@ def test_a_knot_test_after_the_command_revises_it_over_dds(procs, observer):
     sent again (and logged), and the lock is reached and held meanwhile."""
     start(procs, "sim", "ops_sim_ros", "sim", "stage:=5", "mode:=extreme", "seed:=8")
     observer.wait_for_subscriber()
-    tracker = start(procs, "tracker", "ops_controller_ros", "tracker", "seed:=8")
+    # No real-time cap on the knot test here: on a loaded machine the node's 4 ms cap stopped
+    # every test for minutes; the deferral and the revision do not depend on it.
+    tracker = start(
+        procs, "tracker", "ops_controller_ros", "tracker", "seed:=8", "knot_budget_ms:=0"
+    )
     tracker.wait_for("closing the loop", timeout=30)
-    # (on a loaded machine the node's 4 ms cap can stop knot tests for a while: up to 150 s)
     line = tracker.wait_for(r"reading \d+ \(locked;.*\((\d+) commands revised\)", timeout=150)
     assert int(line.group(1)) > 0
     tracker.signal(signal.SIGINT)
