@@ -9,7 +9,10 @@ transport (the ROS nodes and the in-process evaluation drive them the same way):
 * ``observe(power, pulse_energies, steps=1)``: what the last command produced (P_N / P_max and
   the detected slot energies, normalized as on ``/ops/intensity``), ``steps`` simulator steps
   after the previous reading (more than 1 when a free-running simulator stepped before the
-  command came; the nodes count them, :mod:`ops_controller_ros.loop_node`).
+  command came; the nodes count them, :mod:`ops_controller_ros.loop_node`); ``command_age``
+  the steps from the step that took the last command to this reading (None: the step after the
+  previous reading; the nodes read it from ``ops/delays``), for a controller that pairs readings
+  with commands under a latency.
 
 A controller may also have ``think() -> bool``: work that can wait until the command is out (the
 tracker's deferred knot test); True when it changed the command already given, which
@@ -35,7 +38,9 @@ class Controller(Protocol):
 
     def command(self) -> np.ndarray: ...
 
-    def observe(self, power: float, pulse_energies=None, steps: int = 1) -> None: ...
+    def observe(
+        self, power: float, pulse_energies=None, steps: int = 1, command_age: int | None = None
+    ) -> None: ...
 
 
 def _make_spgd(model, params: dict[str, Any], setpoints_fs, seed):

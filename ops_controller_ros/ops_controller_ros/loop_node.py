@@ -246,11 +246,16 @@ class ControllerLoopNode(Node):
         steps = steps_between(self._last_power_seq, seq)
         self._last_power_seq = seq
         self.late_steps += steps - 1
+        # Steps since the step that took the command (its set-points came back on ops/delays):
+        # under a latency a command acts that many steps after it was taken (issue 30)
+        age = None
+        if seq is not None and self._command_step is not None:
+            age = max(self._pairing.step_of(seq, "delays") - self._command_step, 0)
         if self._applied_delays:
             actual = self._pairing.kept_for("actual", seq)
-            self.ctrl.observe(power, energies, steps=steps, applied=actual)
+            self.ctrl.observe(power, energies, steps=steps, applied=actual, command_age=age)
         else:
-            self.ctrl.observe(power, energies, steps=steps)
+            self.ctrl.observe(power, energies, steps=steps, command_age=age)
         self._commands.answered()
         self.readings += 1
         self.after_reading()

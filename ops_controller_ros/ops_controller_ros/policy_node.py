@@ -58,7 +58,9 @@ class PolicyController:
     def command(self) -> np.ndarray:
         return self._command.copy()
 
-    def observe(self, power: float, pulse_energies, steps: int = 1, applied=None) -> None:
+    def observe(
+        self, power: float, pulse_energies, steps: int = 1, applied=None, command_age=None
+    ) -> None:
         """A reading of the last command (``steps``: the loop's count, unused: a policy acts
         on its observation alone)."""
         action = self.runner.act(pulse_energies, power, self._command, applied)

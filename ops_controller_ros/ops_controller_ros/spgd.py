@@ -176,10 +176,13 @@ class SpgdPid:
         sign = 1.0 if self._phase == 0 else -1.0
         return self.setpoints_fs + sign * self.params.perturbation_fs * self._signs
 
-    def observe(self, power: float, pulse_energies=None, steps: int = 1) -> None:
+    def observe(
+        self, power: float, pulse_energies=None, steps: int = 1, command_age: int | None = None
+    ) -> None:
         """The power measured with the last ``command()``; every second reading updates u.
 
-        SPGD uses the power only; ``pulse_energies`` and ``steps`` are accepted for the common
+        SPGD uses the power only; ``pulse_energies``, ``steps`` and ``command_age`` are accepted
+        for the common
         interface of :mod:`ops_controller_ros.controllers` (a gradient step has no model of
         time)."""
         if self.latency:

@@ -65,3 +65,42 @@ def test_taking_a_latency_drops_the_work_of_the_old_pairing():
     assert tracker._knot_job is None and not tracker.locked and tracker.latency == 2
     assert not tracker.think()
     assert np.all(np.isfinite(next_command(tracker)))
+
+
+def _run_with_late_commands(latency, mode, seed, tell, p_late=0.15, steps=300):
+    """A free-running rig in process: with probability ``p_late`` a command comes after the
+    rig's next step (that step runs on the old set-points, its reading is not used), as over
+    DDS on a busy machine; ``tell``: the tracker is told the command's age (0: taken by the
+    reading's own step), as the loop node reads it from ops/delays."""
+    config = make_config(5, mode, "test", latency_steps=latency)
+    sim = BatchedSimulation(config, 1, seed=seed)
+    tracker = PhaseTracker(config, seed=seed)
+    sim.reset(seed=seed)
+    rng = np.random.default_rng(seed + 1)
+    previous, powers = sim.setpoints_fs[0].copy(), []
+    for _ in range(steps):
+        u = next_command(tracker)
+        n = 1
+        while n < 3 and rng.random() < p_late:
+            sim.step_setpoints(previous[None])
+            n += 1
+        res = sim.step_setpoints(u[None])
+        previous = u
+        age = 0 if tell else None
+        tracker.observe(float(res.power[0]), res.pulse_energies[0], steps=n, command_age=age)
+        powers.append(float(res.power[0]))
+    return tracker, np.array(powers[100:])
+
+
+def test_late_commands_told_by_their_age_are_not_taken_for_a_longer_latency():
+    """A command that came after the rig's next step acts a step later than the tracker
+    expects; told its age (the step that took it), the tracker pairs it right and holds."""
+    told, untold = [], []
+    for latency, mode, seed in [(1, "medium", 52), (2, "hard", 53)]:
+        tracker, powers = _run_with_late_commands(latency, mode, seed, tell=True)
+        assert tracker.latency == latency and tracker.latency_changes == 0
+        told.append(np.mean(powers >= 0.95))
+        _, powers = _run_with_late_commands(latency, mode, seed, tell=False)
+        untold.append(np.mean(powers >= 0.95))
+    assert min(told) >= 0.98, told
+    assert np.mean(untold) < np.mean(told)  # what the age is there for

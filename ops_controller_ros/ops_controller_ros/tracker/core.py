@@ -164,6 +164,16 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             self._hop = None
         return u * self.period_fs
 
+    def _command_taken(self, taken: int, expected: int) -> None:
+        """The last command (sent after the previous reading, so expected at step ``expected``)
+        was taken at step ``taken``: it acts from ``taken`` + latency."""
+        if taken <= expected:
+            return
+        if self._in_flight and self._in_flight[-1][0] == expected:
+            self._in_flight[-1][0] = taken
+        if self._commands_sent and self._commands_sent[-1][0] == expected:
+            self._commands_sent[-1] = (taken, self._commands_sent[-1][1])
+
     def _reading_setpoints(self):
         """(set-points (cycles), whole-cycle move) that shaped the reading at ``self._step``:
         the last command, or with latency the one in effect ``latency`` steps before; with a
@@ -183,13 +193,22 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             self._position = self._position + self.lag_gain * (acting - self._position)
         return self._position, hop
 
-    def observe(self, power: float, pulse_energies=None, steps: int = 1) -> None:
+    def observe(
+        self, power: float, pulse_energies=None, steps: int = 1, command_age: int | None = None
+    ) -> None:
         """The reading produced by the last :meth:`command`; updates the estimate.
 
         ``steps``: the simulator (or rig) steps since the previous reading, 1 when every step's
         reading is used (in process, lockstep). A free-running simulator steps every 10 ms
         whether or not the command came: a late command costs a step on the old set-points,
-        and the drift moved the delays on by one more step than the reading before suggests."""
+        and the drift moved the delays on by one more step than the reading before suggests.
+
+        ``command_age``: steps from the step that took the last command to this reading's (0:
+        this step took it; the nodes read it from ``ops/delays``). With a latency, a command
+        acts that many steps after the step that took it, not after the reading it answered:
+        a late command told as such is no longer mistaken for a longer latency (over DDS,
+        ~13 % late commands made the latency check flip between 1 and 2). None: taken by the
+        step after the previous reading (in process, lockstep)."""
         if pulse_energies is None:
             raise ValueError("the tracker needs the detected pulse energies, not only the power")
         y = np.append(np.asarray(pulse_energies, dtype=np.float64).ravel(), float(power))
@@ -206,6 +225,8 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self._tick += 1
         self._step += steps
         self._gap = steps
+        if command_age is not None:
+            self._command_taken(self._step - int(command_age), self._step - steps + 1)
         u_now, hop = self._reading_setpoints()
         if self._noise_var is None and self._history:
             last_u, last_y, _ = self._history[-1]

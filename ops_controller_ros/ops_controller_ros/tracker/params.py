@@ -279,12 +279,13 @@ class TrackerParams:
         node=True,
     )
     hop_cycles: int = _declare(2, "periods of a whole-cycle move", 1, 10)
-    # A latency the tracker was not told, or a wrong one (issue 30): after this many readings in
-    # a row below latency_check_below, the last readings are re-paired with the commands under
-    # each latency up to latency_check_longest and the one they fit is taken (.latency_check).
+    # A latency the tracker was not told, or a wrong one (issue 30): once three quarters of the
+    # last latency_check_after readings are below latency_check_below, the last readings are
+    # re-paired with the commands under each latency up to latency_check_longest and the one
+    # they fit is taken (.latency_check).
     latency_check_after: int = _declare(
         20,
-        "readings in a row below latency_check_below before the latency is checked (0: never)",
+        "readings of which 3/4 below latency_check_below start a latency check (0: never)",
         0,
         100000,
         node=True,
