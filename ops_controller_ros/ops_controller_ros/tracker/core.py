@@ -20,6 +20,7 @@ from .knots import KnotJob, KnotTest
 from .latency_check import LatencyWatch
 from .params import TrackerParams
 from .period import PeriodCalibration
+from .weights import WeightedStacker, source_noise_weights
 
 FIT_VAR_FITS = 25  # tracking fits whose residuals give the readings' std (their median)
 FIT_VAR_MIN = 5  # ... once this many are in
@@ -30,7 +31,9 @@ def _told_noise(params: TrackerParams, model) -> TrackerParams:
     digitizer, :func:`ops_sim_ros.rig.reading_noise_std`) when that is more than assumed."""
     from ops_sim_ros.rig import reading_noise_std
 
-    noise = reading_noise_std(model) if hasattr(model, "trace_adc_bits") else 0.0
+    noise = 0.0
+    if hasattr(model, "trace_adc_bits"):  # the source's noise is weighed per entry (.weights)
+        noise = reading_noise_std(replace(model, pulse_amplitude_noise=0.0))
     return replace(params, detector_noise=noise) if noise > params.detector_noise else params
 
 
@@ -46,6 +49,10 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self.params = _told_noise(params or TrackerParams(), model)
         self.calibration = ModelCalibration(model, self.params.calibration_memory)
         self.stacker = stacker_from_config(model)
+        floor = max(self.params.detector_noise, self.params.fit_noise_floor)
+        self._weights = source_noise_weights(
+            self.stage, float(getattr(model, "pulse_amplitude_noise", 0.0)), floor
+        )
         self.period_fs = model.optical_period_fs
         self.range_cycles = model.actuator_range_cycles
         # The rig's latency, as the model says (issue 30): a command acts this many steps late,
@@ -320,12 +327,23 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles."""
         return fit.predict(self.stacker, self.period_fs, x, u, age, drift)
 
+    @property
+    def _fit_stacker(self):
+        """The model as the fits see it: readings weighed per entry (.weights)."""
+        if self._weights is None:
+            return self.stacker
+        return WeightedStacker(self.stacker, self._weights)
+
+    def _weighed(self, y):
+        return y if self._weights is None else y * self._weights
+
     def _cost(self, x, u, y, age, drift) -> np.ndarray:
-        return fit.cost(self.stacker, self.period_fs, x, u, y, age, drift)
+        return fit.cost(self._fit_stacker, self.period_fs, x, u, self._weighed(y), age, drift)
 
     def _refine(self, x, u, y, age, drift, iterations: int):
         """:func:`.fit.refine` on the model now (a generator)."""
-        return fit.refine(self.stacker, self.period_fs, x, u, y, age, drift, iterations)
+        y = self._weighed(y)
+        return fit.refine(self._fit_stacker, self.period_fs, x, u, y, age, drift, iterations)
 
     def _noisy(self) -> bool:
         """A detector noise assumed of at least ``told_noisy_threshold``, or measured of at
@@ -412,12 +430,12 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             prior = p.noisy_drift_prior_cycles if self._noisy() else p.drift_prior_cycles
             drift_prior = np.full(drift.shape, prior)
         return fit.fit_paths(
-            self.stacker,
+            self._fit_stacker,
             self.period_fs,
             x_now,
             drift,
             u,
-            y,
+            self._weighed(y),
             age,
             iterations,
             r_sd=self._reading_sd(),

@@ -121,7 +121,7 @@ class LatencyWatch:
 
     def _watch_reading(self, y: np.ndarray) -> None:
         p = self.params
-        self._readings_kept.append((self._step, y))
+        self._readings_kept.append((self._step, self._weighed(y)))
         if not p.latency_check_after:
             return
         if self._latency_job is not None:
@@ -142,7 +142,7 @@ class LatencyWatch:
         if full and 4 * sum(self._dim_flags) >= 3 * p.latency_check_after:
             self.latency_checks += 1
             self._latency_job = measure_latency(
-                self.stacker,
+                self._fit_stacker,
                 self.period_fs,
                 list(self._commands_sent),
                 list(self._readings_kept),
