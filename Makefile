@@ -1,11 +1,14 @@
 # Thin entry points: each target calls one script.
-.PHONY: setup demo test bench lint figures
+.PHONY: setup demo demo-rig test bench lint figures
 
 setup:
 	bash scripts/setup.sh
 
 demo: setup
 	bash scripts/demo.sh
+
+demo-rig: setup
+	bash scripts/demo_rig.sh
 
 test: setup
 	bash scripts/test.sh

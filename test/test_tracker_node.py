@@ -68,6 +68,19 @@ def test_bad_parameter_stops_the_tracker_before_it_spins(procs):
     assert_no_traceback(tracker.output)
 
 
+def test_a_bad_rig_file_stops_the_tracker_before_it_spins(procs, tmp_path):
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("stage: 5\noptics: {detector: camera}\n")
+    for path, says in (
+        (rig, f"the rig file {rig}: optics.detector must be one of polarizer, total"),
+        (tmp_path / "none.yaml", f"cannot read the rig file {tmp_path / 'none.yaml'}"),
+    ):
+        tracker = start(procs, "tracker", "ops_controller_ros", "tracker", f"rig_config:={path}")
+        assert tracker.wait_exit(30) == 2
+        assert f"invalid parameter: rig_config: {says}" in tracker.output, tracker.output
+        assert_no_traceback(tracker.output)
+
+
 @pytest.mark.parametrize(
     "exe, value, allowed",
     [

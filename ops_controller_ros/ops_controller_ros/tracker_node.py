@@ -3,9 +3,10 @@
 (:class:`~ops_controller_ros.loop_node.ControllerLoopNode`).
 
 The model parameters (wavelength, pulse width, detector) are node parameters with the simulator's
-defaults, and the rig (``realism`` and its figures, ``ops_sim_ros.rig_params``) as the simulator
-node takes it: the controller is told the nominal rig, never the simulator's state; the stage and
-the trace's samples per slot come from the messages. The tracker's own parameters are
+defaults, or a rig YAML's ``optics.*`` (``rig_config``, :mod:`.rig_optics`), and the rig
+(``realism`` and its figures, ``ops_sim_ros.rig_params``) as the simulator node takes it: the
+controller is told the nominal rig, never the simulator's state; the stage and the trace's
+samples per slot come from the messages. The tracker's own parameters are
 :class:`~ops_controller_ros.tracker.TrackerParams`' declared node fields, with its defaults
 (``evaluate --controller tracker`` runs the same), plus real-time caps on the compute per reading.
 """
@@ -15,36 +16,62 @@ from __future__ import annotations
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ops_sim_ros.config import DETECTORS
 from ops_sim_ros.node_params import ParamSpec
+from ops_sim_ros.rig_file import OPTICS_DEFAULTS, OPTICS_LIMITS
 from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DIAGNOSTICS, ParameterError, run_node
 from std_msgs.msg import Float32MultiArray
 
 from .loop_node import ControllerLoopNode
+from .rig_optics import RIG_CONFIG, given_parameters, hop_every_on_rig, nominal_optics
 from .tracker import NODE_FIELDS, PhaseTracker, TrackerParams, node_param_specs
 
 #: The calibration's estimates [wavelength_nm, pulse_fwhm_fs, detector_gain, detector_offset].
 TOPIC_CALIBRATION = "ops/tracker/calibration"
-#: The nominal model's optics and detector (the simulator's defaults).
+#: The nominal model's optics and detector (the simulator's defaults, and a rig YAML's keys).
 MODEL_PARAMS = [
-    ParamSpec("wavelength_nm", 1030.0, "nominal carrier wavelength, nm", low=100.0, high=20000.0),
-    ParamSpec("pulse_fwhm_fs", 1000.0, "nominal sech^2 pulse FWHM, fs", low=1.0, high=1e6),
-    ParamSpec("detector", "polarizer", "what the detector sees", choices=DETECTORS),
+    ParamSpec(
+        "wavelength_nm",
+        OPTICS_DEFAULTS["wavelength_nm"],
+        "nominal carrier wavelength, nm",
+        *OPTICS_LIMITS["wavelength_nm"],
+    ),
+    ParamSpec(
+        "pulse_fwhm_fs",
+        OPTICS_DEFAULTS["pulse_fwhm_fs"],
+        "nominal sech^2 pulse FWHM, fs",
+        *OPTICS_LIMITS["pulse_fwhm_fs"],
+    ),
+    ParamSpec("detector", OPTICS_DEFAULTS["detector"], "what the detector sees", choices=DETECTORS),
+    RIG_CONFIG,
 ]
 # The tracker's own parameters are generated from TrackerParams' declarations (one default set
 # with evaluate; the node adds only real-time caps, docs/tracker.md); the rig's are every
 # controller node's (ControllerLoopNode, ops_sim_ros.rig_params).
 PARAMS = [*MODEL_PARAMS, *node_param_specs()]
-_MODEL_FIELDS = tuple(p.name for p in MODEL_PARAMS)
 
 
 class TrackerNode(ControllerLoopNode):
     def __init__(self):
         super().__init__("ops_tracker", PARAMS)
+        # The optics: parameters given explicitly, else the rig YAML's, else the defaults.
+        given = given_parameters(self)
+        self._model, rig, note = nominal_optics(self.values, given, self.values["rig_config"])
+        self._rig_stage = rig.stage if rig is not None else None
+        node_values = {k: self.values[k] for k in NODE_FIELDS}
+        node_values["hop_every"], hop_note = hop_every_on_rig(
+            node_values["hop_every"],
+            given,
+            rig,
+            self._model["wavelength_nm"],
+            TrackerParams.hop_cycles,
+        )
         try:
-            self._params = TrackerParams(**{k: self.values[k] for k in NODE_FIELDS})
+            self._params = TrackerParams(**node_values)
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
-        self._model = {k: self.values[k] for k in _MODEL_FIELDS}
         self.nominal_model(**self._model)  # checked before the node spins
+        for line in (note, hop_note):
+            if line:
+                self.get_logger().info(line)
         # What the online calibration estimates (wavelength_nm, pulse_fwhm_fs, detector_gain,
         # detector_offset), published with each progress line.
         self._pub_calibration = self.create_publisher(
@@ -78,6 +105,13 @@ class TrackerNode(ControllerLoopNode):
         self._pub_diag.publish(msg)
 
     def build_controller(self, delays, samples_per_slot):
+        if self._rig_stage is not None and delays.size != self._rig_stage:
+            self.get_logger().error(
+                f"the rig publishes {delays.size} stages, its file "
+                f"({self.values['rig_config']}) says {self._rig_stage}: not controlling it",
+                throttle_duration_sec=5.0,
+            )
+            return None
         try:
             model = self.nominal_model(
                 stage=delays.size, samples_per_slot=samples_per_slot, **self._model

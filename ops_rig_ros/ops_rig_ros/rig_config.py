@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from ops_sim_ros.rig_file import parse_optics
 
 MAX_STAGE = 10
 MAX_VOLTS = 1000.0  # no piezo drive of this project's kind goes beyond
@@ -156,6 +157,10 @@ def load_rig_config(path) -> RigConfig:
     for i, a in enumerate(actuators):
         if not isinstance(a, dict) or "driver" not in a:
             raise RigConfigError(f"actuators[{i}] must be a mapping with its driver")
+    try:  # the keys the controllers' nominal model reads too (ops_sim_ros.rig_file)
+        optics, _ = parse_optics(raw)
+    except ValueError as exc:
+        raise RigConfigError(str(exc)) from None
     return RigConfig(
         path=path,
         stage=n,
@@ -167,7 +172,7 @@ def load_rig_config(path) -> RigConfig:
         stale_s=_number(raw.get("stale_s", 0.5), "stale_s", 0.01, 60.0),
         sweep_span_volts=_number(raw.get("sweep_span_volts", 12.0), "sweep_span_volts", 0.1, 1e3),
         settle_reads=int(_number(raw.get("settle_reads", 1), "settle_reads", 1, 100)),
-        optics=dict(raw.get("optics") or {}),
+        optics=optics,
         raw=raw,
     )
 

@@ -1,0 +1,79 @@
+"""The tracker's nominal optics from a rig YAML (``-p rig_config:=RIG.yaml``, docs/rig.md).
+
+The rig YAML that ``ops_rig_ros calibrate`` wrote tells the stacker's stage and nominal optics
+(``optics.wavelength_nm``, ``optics.pulse_fwhm_fs``, ``optics.detector``), read here with the
+rig package's own checks (:mod:`ops_sim_ros.rig_file`, shared: this package does not depend on
+``ops_rig_ros``). A parameter given explicitly (command line, launch file, parameter file)
+overrides the file; the file overrides the parameters' defaults.
+
+The file also tells how far a delay line moves in one reading at the rig's slew limit. A
+whole-cycle move of the tracker (``hop_every``: it measures the wavelength) that takes longer
+than one reading leaves readings half-way, far below the stack (simulated lab, N = 5, hard,
+50 Hz, 200 V/s: a dip every ~20 readings, docs/rig.md), so on such a rig the moves are off unless
+``hop_every`` is given.
+"""
+
+from __future__ import annotations
+
+from ops_sim_ros.config import SPEED_OF_LIGHT_NM_PER_FS
+from ops_sim_ros.node_params import ParamSpec
+from ops_sim_ros.rig_file import RigFileError, RigModel, read_rig_model
+from ops_sim_ros.ros_interface import ParameterError
+from rclpy.node import Node
+
+RIG_CONFIG = ParamSpec(
+    "rig_config",
+    "",
+    "rig YAML whose optics.* (and stage) the nominal model takes ('' : none; "
+    "parameters given explicitly override it)",
+)
+
+
+def given_parameters(node: Node) -> set[str]:
+    """The parameters given to ``node`` from outside (command line, launch, parameter files).
+
+    rclpy keeps them in ``Node._parameter_overrides`` and has no public accessor (Jazzy); a
+    parameter declared with its default cannot otherwise be told from one given its default."""
+    return set(getattr(node, "_parameter_overrides", {}))
+
+
+def nominal_optics(values: dict, given: set[str], path: str) -> tuple[dict, RigModel | None, str]:
+    """The optics (wavelength_nm, pulse_fwhm_fs, detector) of the parameter ``values``, with
+    those not ``given`` taken from the rig YAML at ``path`` ('' : none); the file's model (None
+    without a file) and a line saying where each came from. ParameterError names the file and
+    the key."""
+    names = ("wavelength_nm", "pulse_fwhm_fs", "detector")
+    optics = {k: values[k] for k in names}
+    if not path:
+        return optics, None, ""
+    try:
+        rig = read_rig_model(path)
+    except RigFileError as exc:
+        raise ParameterError(f"rig_config: {exc}") from None
+    taken = [k for k in names if k not in given]
+    optics.update({k: rig.optics[k] for k in taken})
+    source = ", ".join(f"{k}={optics[k]}" for k in names)
+    kept = [k for k in names if k in given]
+    note = f"nominal model from {path}: stage {rig.stage}, {source}" + (
+        f" ({', '.join(kept)} given as parameters)" if kept else ""
+    )
+    if not rig.calibrated:
+        note += "; the file has no calibration yet (run ops_rig_ros calibrate)"
+    return optics, rig, note
+
+
+def hop_every_on_rig(
+    hop_every: int, given: set[str], rig: RigModel | None, wavelength_nm: float, hop_cycles: int
+) -> tuple[int, str]:
+    """``hop_every``, or 0 where the rig's lines cannot make a whole-cycle move of ``hop_cycles``
+    periods within one reading (and ``hop_every`` was not given); a line saying so, or ''."""
+    if rig is None or rig.reach_fs_per_reading is None or "hop_every" in given or not hop_every:
+        return hop_every, ""
+    move_fs = hop_cycles * wavelength_nm / SPEED_OF_LIGHT_NM_PER_FS
+    if move_fs <= rig.reach_fs_per_reading:
+        return hop_every, ""
+    return 0, (
+        f"whole-cycle moves off (hop_every 0): a move of {move_fs:.2f} fs takes more than one "
+        f"reading at the rig's slew limit (the slowest line moves {rig.reach_fs_per_reading:.2f} "
+        "fs per reading); -p hop_every:=N makes them anyway"
+    )
