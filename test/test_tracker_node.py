@@ -126,7 +126,11 @@ def test_a_knot_test_after_the_command_revises_it_over_dds(procs, observer):
     """Extreme mode, free-running: the tracker answers each reading first and tests it for a
     knot of the drift after (``defer_knot_test``, its default); a command the test changed is
     sent again (and logged), and the lock is reached and held meanwhile."""
-    start(procs, "sim", "ops_sim_ros", "sim", "stage:=5", "mode:=extreme", "seed:=8")
+    # The testing split: its shifted drift has knots often (in process, seed 8: 92 revisions in
+    # 3000 steps, the first at step 61; the training split 16, the first at 275, and once over
+    # DDS none in 150 s)
+    start(procs, "sim", "ops_sim_ros", "sim", "stage:=5", "mode:=extreme", "seed:=8",
+          "split:=test")  # fmt: skip
     observer.wait_for_subscriber()
     # No real-time cap on the knot test here: on a loaded machine the node's 4 ms cap stopped
     # every test for minutes; the deferral and the revision do not depend on it.
