@@ -142,12 +142,7 @@ def _sweep_stage(rig: Rig, held, j: int, low: float, high: float, read):
     span = high - low
     fits = []
     for volts in (up, up[::-1]):
-        signal = np.empty(volts.size)
-        for i, v in enumerate(volts):
-            target = held.copy()
-            target[j] = v
-            rig.drive.ramp_to(target)
-            signal[i] = read(_settled_record(rig))
+        signal = _sweep_signal(rig, held, j, volts, read)
         f, _, b, _, rms = fit_fringe(volts, signal, 1.5 / span, SWEEP_POINTS / (2.5 * span))
         if b < MIN_FRINGE_SNR * rms:
             raise CalibrationError(
@@ -158,6 +153,18 @@ def _sweep_stage(rig: Rig, held, j: int, low: float, high: float, read):
     f = 0.5 * (fits[0][2] + fits[1][2])
     volts, signal, _ = fits[1]
     return (f, *fit_at_frequency(volts, signal, f))
+
+
+def _sweep_signal(rig: Rig, held, j: int, volts: np.ndarray, read) -> np.ndarray:
+    """``read(record)`` with stage j at each of ``volts`` in turn (the others at ``held``),
+    each move at the slew limit."""
+    signal = np.empty(volts.size)
+    for i, v in enumerate(volts):
+        target = held.copy()
+        target[j] = v
+        rig.drive.ramp_to(target)
+        signal[i] = read(_settled_record(rig))
+    return signal
 
 
 def indicator_reader(n: int, j: int, optics: dict, positions) -> Callable[[np.ndarray], float]:
@@ -176,12 +183,7 @@ def _peak_stage(rig: Rig, held, j: int, period_v: float, read) -> tuple[float, f
     lim = rig.config.limits
     volts = held[j] + period_v * PEAK_SPAN_CYCLES * np.linspace(-1, 1, PEAK_POINTS)
     volts = np.clip(volts, lim.volts_min[j], lim.volts_max[j])
-    signal = np.empty(volts.size)
-    for i, v in enumerate(volts):
-        target = held.copy()
-        target[j] = v
-        rig.drive.ramp_to(target)
-        signal[i] = read(_settled_record(rig))
+    signal = _sweep_signal(rig, held, j, volts, read)
     rig.drive.ramp_to(held)
     x = 2 * np.pi * volts / period_v
     design = np.stack([np.ones_like(x), np.cos(x), np.sin(x)], 1)
