@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from ops_sim_ros.rig_file import parse_optics
+from ops_sim_ros.rig_file import RigFileError, parse_optics, read_rig_mapping
 
 MAX_STAGE = 10
 MAX_VOLTS = 1000.0  # no piezo drive of this project's kind goes beyond
@@ -134,13 +134,9 @@ def load_rig_config(path) -> RigConfig:
     """The validated rig YAML at ``path``; RigConfigError naming the key when it is unusable."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise RigConfigError(f"cannot read the rig file {path}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise RigConfigError(f"{path} is not valid YAML: {exc}") from None
-    if not isinstance(raw, dict):
-        raise RigConfigError(f"{path}: expected a mapping of keys")
+        raw = read_rig_mapping(path)
+    except RigFileError as exc:
+        raise RigConfigError(str(exc)) from None
     if "stage" not in raw:
         raise RigConfigError("stage is required (number of stacking stages, 1 to 10)")
     stage = _number(raw["stage"], "stage", 1, MAX_STAGE)

@@ -75,8 +75,9 @@ def parse_optics(raw: dict) -> tuple[dict, tuple[str, ...]]:
     return optics, tuple(k for k in OPTICS_DEFAULTS if k in section)
 
 
-def read_rig_model(path) -> RigModel:
-    """The stage and optics of the rig YAML at ``path``; RigFileError naming file and key."""
+def read_rig_mapping(path) -> dict:
+    """The keys of the rig YAML at ``path``; RigFileError when it cannot be read, is not YAML
+    or is not a mapping (the rig package's loader reads its files through this too)."""
     path = Path(path)
     try:
         raw = yaml.safe_load(path.read_text())
@@ -86,6 +87,13 @@ def read_rig_model(path) -> RigModel:
         raise RigFileError(f"the rig file {path} is not valid YAML: {exc}") from None
     if not isinstance(raw, dict):
         raise RigFileError(f"the rig file {path}: expected a mapping of keys")
+    return raw
+
+
+def read_rig_model(path) -> RigModel:
+    """The stage and optics of the rig YAML at ``path``; RigFileError naming file and key."""
+    path = Path(path)
+    raw = read_rig_mapping(path)
     stage = raw.get("stage")
     if not isinstance(stage, int) or isinstance(stage, bool) or not 1 <= stage <= MAX_STAGE:
         raise RigFileError(
