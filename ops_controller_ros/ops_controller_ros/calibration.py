@@ -108,11 +108,19 @@ class ModelCalibration:
 
     # ------------------------------------------------------------------ tracking
     def observe(
-        self, stacker, u: np.ndarray, path: np.ndarray, raw: np.ndarray, period_fs, optics=True
+        self,
+        stacker,
+        u: np.ndarray,
+        path: np.ndarray,
+        raw: np.ndarray,
+        period_fs,
+        optics=True,
+        weights=None,
     ):
         """One tracked window: set-points ``u`` (K, N) cycles, the fitted errors ``path`` (K, N),
         the detected readings ``raw`` (K, S + 1); ``stacker`` models the present estimate;
-        ``optics``: accumulate the wavelength's and width's statistics too."""
+        ``optics``: accumulate the wavelength's and width's statistics too; ``weights`` (S + 1,)
+        of the entries in that fit (None: alike)."""
         k = self.forget
         pts = u + path
         if not optics:
@@ -132,9 +140,13 @@ class ModelCalibration:
         wide = np.concatenate([out_w.slot_energies, out_w.power[:, None]], axis=1)
         self._observe_detector(base[-1, :-1], raw[-1, :-1])
         # wavelength and width: Gauss-Newton on the window
-        r = (self.correct(raw) - base).ravel()
+        w = 1.0 if weights is None else weights
+        r = ((self.correct(raw) - base) * w).ravel()
         jac = np.stack(
-            [(stretched - base).ravel() / WAVELENGTH_STEP, (wide - base).ravel() / WIDTH_STEP]
+            [
+                ((stretched - base) * w).ravel() / WAVELENGTH_STEP,
+                ((wide - base) * w).ravel() / WIDTH_STEP,
+            ]
         )
         self._normal = k * self._normal + jac @ jac.T
         self._rhs = k * self._rhs + jac @ r

@@ -21,7 +21,13 @@ from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DIAGNOSTICS, Parameter
 from std_msgs.msg import Float32MultiArray
 
 from .loop_node import ControllerLoopNode
-from .rig_optics import RIG_CONFIG, given_parameters, hop_every_on_rig, nominal_optics
+from .rig_optics import (
+    RIG_CONFIG,
+    given_parameters,
+    hop_every_on_rig,
+    nominal_optics,
+    power_weight_on_rig,
+)
 from .tracker import NODE_FIELDS, PhaseTracker, TrackerParams, node_param_specs
 
 #: The calibration's estimates [wavelength_nm, pulse_fwhm_fs, detector_gain, detector_offset].
@@ -64,12 +70,15 @@ class TrackerNode(ControllerLoopNode):
             self._model["wavelength_nm"],
             TrackerParams.hop_cycles,
         )
+        node_values["power_weight"], power_note = power_weight_on_rig(
+            node_values["power_weight"], given, rig
+        )
         try:
             self._params = TrackerParams(**node_values)
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
         self.nominal_model(**self._model)  # checked before the node spins
-        for line in (note, hop_note):
+        for line in (note, hop_note, power_note):
             if line:
                 self.get_logger().info(line)
         # What the online calibration estimates (wavelength_nm, pulse_fwhm_fs, detector_gain,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 import yaml
-from ops_controller_ros.rig_optics import hop_every_on_rig, nominal_optics
+from ops_controller_ros.rig_optics import hop_every_on_rig, nominal_optics, power_weight_on_rig
 from ops_sim_ros.ros_interface import ParameterError
 
 DEFAULTS = {"wavelength_nm": 1030.0, "pulse_fwhm_fs": 1000.0, "detector": "polarizer"}
@@ -91,3 +91,11 @@ def test_no_calibration_leaves_the_moves_alone(tmp_path):
     _, rig, _ = nominal_optics(DEFAULTS, set(), _rig(tmp_path, rate_hz=50.0))
     assert rig.reach_fs_per_reading is None
     assert hop_every_on_rig(10, set(), rig, 1030.0, 2) == (10, "")
+
+
+def test_on_a_rig_the_power_is_weighed_zero_unless_given(tmp_path):
+    _, rig, _ = nominal_optics(DEFAULTS, set(), _rig(tmp_path, rate_hz=50.0))
+    weight, note = power_weight_on_rig(1.0, set(), rig)
+    assert weight == 0.0 and "computed from its trace" in note
+    assert power_weight_on_rig(1.0, {"power_weight"}, rig) == (1.0, "")  # given: kept
+    assert power_weight_on_rig(1.0, set(), None) == (1.0, "")  # a simulator: its detector

@@ -53,6 +53,10 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self._weights = source_noise_weights(
             self.stage, float(getattr(model, "pulse_amplitude_noise", 0.0)), floor
         )
+        if self.params.power_weight < 1.0:
+            if self._weights is None:
+                self._weights = np.ones(self.stacker.num_slots + 1)
+            self._weights[-1] *= self.params.power_weight
         self.period_fs = model.optical_period_fs
         self.range_cycles = model.actuator_range_cycles
         # The rig's latency, as the model says (issue 30): a command acts this many steps late,

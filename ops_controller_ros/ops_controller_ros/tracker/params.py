@@ -159,6 +159,17 @@ class TrackerParams:
     detector_noise: float = _declare(
         0.0, "assumed detector noise std (normalized energies)", 0.0, 1.0, node=True
     )
+    # A rig node computes ops/power from the trace it publishes (the sum of the squared slot
+    # energies, clipped at 1; docs/rig.md): it adds nothing to the slot energies but their
+    # full-scale error, squared, and a flat top. The fits then weigh it by this factor.
+    power_weight: float = _declare(
+        1.0,
+        "weight of ops/power in the fits beside the slot energies (0: a power computed from "
+        "the trace, as a rig node's)",
+        0.0,
+        1.0,
+        node=True,
+    )
     misses: int = _declare(3, "bad fits in a row before recovering", 1)
     # Knots of the drift (a stage's slope changes): a tracking fit whose residual exceeds
     # knot_tolerance (or whose path jumps, knot_walk_sigmas) is tried again under one hypothesis

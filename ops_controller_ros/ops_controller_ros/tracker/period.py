@@ -84,7 +84,7 @@ class PeriodCalibration:
         the model's wavelength and pulse width and re-express the state in the new cycles."""
         raw = self._window(raw=True)[1]
         optics = self.params.calibrate_optics
-        self.calibration.observe(self.stacker, u, path, raw, self.period_fs, optics)
+        self.calibration.observe(self.stacker, u, path, raw, self.period_fs, optics, self._weights)
         if not optics or self._tick % self.params.calibration_every:
             return
         if self.calibration.update_optics():
