@@ -98,6 +98,7 @@ class ControllerLoopNode(Node):
         self._delays = None  # the latest ops/delays
         self._next_allowed = 0.0
         self._last_reading_at = float("-inf")
+        self._last_power_at = float("-inf")  # any ops/power, a reading of ours or not
         self._last_power_seq = None  # DDS sequence number of the last ops/power reading used
         self.late_steps = 0  # simulator steps that ran on old set-points (the command was late)
         self.revised_commands = 0  # commands replaced once the controller had thought further
@@ -236,6 +237,7 @@ class ControllerLoopNode(Node):
         power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
         seq = sequence_number(info)
         self._pairing.on_power(seq)
+        self._last_power_at = time.monotonic()
         if power is None or self.ctrl is None or not self._is_reading(seq):
             return
         trace, samples = self._pairing.kept_for("trace", seq)
@@ -313,14 +315,23 @@ class ControllerLoopNode(Node):
                 )
             self._send()
 
+    def _why_silent(self) -> str:
+        if time.monotonic() - self._last_power_at > self._commands.timeout_s:
+            return " (waiting for the simulator)"
+        return (
+            " (the simulator or rig publishes but has not taken the last command: a rig "
+            "refuses set-points outside its limits, see its log)"
+        )
+
     def _log_progress(self):
         if self.ctrl is None or not self.readings:
             return
         silent_s = time.monotonic() - self._last_reading_at
         if silent_s > max(self._commands.timeout_s, self._log_period):
-            # The simulator (or rig) is gone or stalled: the last power is no longer current.
+            # The simulator (or rig) is gone or stalled, or it runs on without taking our
+            # command: the last power is no longer current.
             self.get_logger().info(
-                f"{self.progress()}: no reading for {silent_s:.1f} s (waiting for the simulator)"
+                f"{self.progress()}: no reading for {silent_s:.1f} s{self._why_silent()}"
             )
             return
         late = ""

@@ -61,6 +61,7 @@ class TrackerNode(ControllerLoopNode):
         # The optics: parameters given explicitly, else the rig YAML's, else the defaults.
         given = given_parameters(self)
         self._model, rig, note = nominal_optics(self.values, given, self.values["rig_config"])
+        self._rig = rig
         self._rig_stage = rig.stage if rig is not None else None
         node_values = {k: self.values[k] for k in NODE_FIELDS}
         node_values["hop_every"], hop_note = hop_every_on_rig(
@@ -128,7 +129,15 @@ class TrackerNode(ControllerLoopNode):
         except ParameterError as exc:
             self.get_logger().error(f"cannot model this simulator: {exc}")
             return None
-        return PhaseTracker(model, self._params, setpoints_fs=delays, seed=self.seed)
+        rig = self._rig
+        return PhaseTracker(
+            model,
+            self._params,
+            setpoints_fs=delays,
+            seed=self.seed,
+            setpoint_range_fs=None if rig is None else rig.setpoint_range_fs,
+            reach_fs=None if rig is None else rig.reach_fs_per_reading,
+        )
 
     def progress(self) -> str:
         if self.ctrl.latency_changes:

@@ -99,3 +99,17 @@ def test_on_a_rig_the_power_is_weighed_zero_unless_given(tmp_path):
     assert weight == 0.0 and "computed from its trace" in note
     assert power_weight_on_rig(1.0, {"power_weight"}, rig) == (1.0, "")  # given: kept
     assert power_weight_on_rig(1.0, set(), None) == (1.0, "")  # a simulator: its detector
+
+
+def test_the_file_tells_the_set_points_each_line_can_take(tmp_path):
+    path = _rig(
+        tmp_path,
+        limits={"volts_min": 0, "volts_max": 75, "slew_volts_per_s": 200.0},
+        calibration={"fs_per_volt": [0.8, -1.0, 1.0, 1.0, 1.0], "zero_volts": [40.0] * 5},
+    )
+    _, rig, _ = nominal_optics(DEFAULTS, set(), path)
+    low, high = rig.setpoint_range_fs
+    assert low[0] == pytest.approx(-32.0) and high[0] == pytest.approx(28.0)
+    assert low[1] == pytest.approx(-35.0) and high[1] == pytest.approx(40.0)  # a negative fs/V
+    _, bare, _ = nominal_optics(DEFAULTS, set(), _rig(tmp_path, rate_hz=50.0))
+    assert bare.setpoint_range_fs is None

@@ -40,6 +40,9 @@ class RigModel:
     # The least delay, fs, that any stage's line moves in one reading at the slew limit
     # (slew / rate x |fs per volt|); None without a calibration.
     reach_fs_per_reading: float | None = None
+    # The set-points (fs) each stage's line can take within its channel's voltage limits,
+    # (low (N,), high (N,)); None without a calibration.
+    setpoint_range_fs: tuple | None = None
 
 
 def parse_optics(raw: dict) -> tuple[dict, tuple[str, ...]]:
@@ -105,9 +108,10 @@ def read_rig_model(path) -> RigModel:
         raise RigFileError(f"the rig file {path}: {exc}") from None
     try:
         reach = _reach_fs_per_reading(raw, stage)
+        span = _setpoint_range_fs(raw, stage)
     except ValueError as exc:
         raise RigFileError(f"the rig file {path}: {exc}") from None
-    return RigModel(path, stage, optics, given, bool(raw.get("calibration")), reach)
+    return RigModel(path, stage, optics, given, bool(raw.get("calibration")), reach, span)
 
 
 def _numbers(value, key: str, n: int) -> list[float]:
@@ -133,3 +137,22 @@ def _reach_fs_per_reading(raw: dict, n: int) -> float | None:
     k = _numbers(calibration["fs_per_volt"], "calibration.fs_per_volt", n)
     slew = _numbers(limits["slew_volts_per_s"], "limits.slew_volts_per_s", n)
     return min(abs(a) * b for a, b in zip(k, slew, strict=True)) / float(rate)
+
+
+def _setpoint_range_fs(raw: dict, n: int) -> tuple | None:
+    """(low, high) set-points per stage, fs, that the channels' limits allow through the
+    calibration (fs = (volts - zero_volts) x fs_per_volt); None without a calibration."""
+    calibration, limits = raw.get("calibration"), raw.get("limits")
+    if not isinstance(calibration, dict) or not isinstance(limits, dict):
+        return None
+    keys = ("volts_min", "volts_max")
+    if not {"fs_per_volt", "zero_volts"} <= set(calibration) or not set(keys) <= set(limits):
+        return None
+    k = _numbers(calibration["fs_per_volt"], "calibration.fs_per_volt", n)
+    zero = _numbers(calibration["zero_volts"], "calibration.zero_volts", n)
+    vmin = _numbers(limits["volts_min"], "limits.volts_min", n)
+    vmax = _numbers(limits["volts_max"], "limits.volts_max", n)
+    ends = [
+        sorted(((a - z) * g, (b - z) * g)) for a, b, z, g in zip(vmin, vmax, zero, k, strict=True)
+    ]
+    return tuple(e[0] for e in ends), tuple(e[1] for e in ends)

@@ -40,7 +40,18 @@ def _told_noise(params: TrackerParams, model) -> TrackerParams:
 class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
     """Model-based stacking controller (see the module docstring): reset / command / observe."""
 
-    def __init__(self, model, params: TrackerParams | None = None, setpoints_fs=None, seed=None):
+    def __init__(
+        self,
+        model,
+        params: TrackerParams | None = None,
+        setpoints_fs=None,
+        seed=None,
+        setpoint_range_fs=None,
+        reach_fs=None,
+    ):
+        """``setpoint_range_fs``: (low (N,), high (N,)) the set-points each line can take (a
+        rig's channel limits through its calibration; default: the model's +- actuator range);
+        ``reach_fs``: how far the slowest line moves in one reading (None: any distance)."""
         from ops_sim_ros.physics import stacker_from_config
         from ops_sim_ros.rig import lag_gain
 
@@ -59,6 +70,14 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             self._weights[-1] *= self.params.power_weight
         self.period_fs = model.optical_period_fs
         self.range_cycles = model.actuator_range_cycles
+        if setpoint_range_fs is None:
+            reach = self.range_cycles * self.period_fs
+            setpoint_range_fs = (np.full(self.stage, -reach), np.full(self.stage, reach))
+        self.range_fs = tuple(
+            np.asarray(r, dtype=np.float64).reshape(-1) for r in setpoint_range_fs
+        )
+        self.reach_fs = reach_fs
+        self.range_moves = 0  # whole-cycle moves off a line's limit (period.py)
         # The rig's latency, as the model says (issue 30): a command acts this many steps late,
         # so a reading is matched to the command in effect then, and a command aims that far.
         self.latency = int(getattr(model, "latency_steps", 0))
@@ -162,11 +181,12 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
                 signs = self._rng.choice((-1.0, 1.0), size=self.stage)
                 u = self._base + p.acquire_dither_cycles * signs
         else:
-            self._hop = self._plan_hop()
+            moved = self._range_move()
+            self._hop = None if moved else self._plan_hop()
             u = self._base + self._hold_dither() * self._excursion(self._tick)
         if self.lag_gain is not None:  # a command that brings the lagging lines there in a step
             u = self._position + (u - self._position) / self.lag_gain
-        u = np.clip(u, -self.range_cycles, self.range_cycles)
+        u = np.clip(u, self.range_fs[0] / self.period_fs, self.range_fs[1] / self.period_fs)
         self._last_command = u
         self._awaiting = True
         self._watch_command(u)
