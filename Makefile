@@ -1,4 +1,5 @@
-# Thin entry points: each target calls one script.
+# Thin entry points: each target calls one script or one tool.
+# make bench runs every speed benchmark (ops-bench all); make bench PARTS="physics bridge" names some.
 .PHONY: setup demo demo-rig test bench lint figures
 
 setup:
@@ -14,10 +15,10 @@ test: setup
 	bash scripts/test.sh
 
 bench: setup
-	bash scripts/bench.sh
+	bash -c 'source setup.bash && ops-bench all $(PARTS)'
 
 lint: setup
 	bash -c 'source setup.bash && ruff check . && ruff format --check .'
 
 figures: setup
-	bash -c 'source setup.bash && python scripts/make_physics_figures.py'
+	bash -c 'source setup.bash && ops-bench figures physics'

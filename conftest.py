@@ -3,22 +3,16 @@
 Isolation: each test module gets its own ROS_DOMAIN_ID (unique within this pytest process, and
 offset by the pid so that two test runs on one machine rarely meet), and DDS discovery is kept on
 localhost. ``procs`` starts commands the way a user would (``ros2 run``) and stops every one of
-them (SIGINT, then SIGKILL) when the test ends; see ros_testing.py.
+them (SIGINT, then SIGKILL) when the test ends; see ops_bench.processes (tools/ops_bench).
 """
 
 from __future__ import annotations
 
 import itertools
 import os
-import sys
-from pathlib import Path
 
 import pytest
-
-# The helpers of the integration tests (test/ros_testing.py) serve every package's tests.
-sys.path.insert(0, str(Path(__file__).resolve().parent / "test"))
-
-from ros_testing import ProcessGroup
+from ops_bench.processes import ProcessGroup
 
 _domains = itertools.count()
 
@@ -60,7 +54,7 @@ def module_procs(tmp_path_factory):
 
 @pytest.fixture
 def observer():
-    from ros_testing import TopicObserver
+    from ops_bench.observer import TopicObserver
 
     obs = TopicObserver()
     yield obs

@@ -31,11 +31,11 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "train = ops_gym_bridge.train:main",
-            "evaluate = ops_gym_bridge.evaluate:main",
-            "benchmark = ops_gym_bridge.benchmark:main",
-            "report = ops_gym_bridge.report:main",
-            "realism_sweep = ops_gym_bridge.realism_sweep:main",
+            "train = ops_gym_bridge.experiments.train:main",
+            "evaluate = ops_gym_bridge.experiments.evaluate:main",
+            "benchmark = ops_gym_bridge.table1.benchmark:main",
+            "report = ops_gym_bridge.table1.report:main",
+            "realism_sweep = ops_gym_bridge.experiments.realism_sweep:main",
         ],
     },
 )

@@ -68,7 +68,7 @@ touch "$VENV/COLCON_IGNORE"
 REQS=(requirements/python.txt requirements/dev.txt)
 [ "$USE_SYSTEM_ROS" = 1 ] || REQS=(requirements/ros-wheels.txt "${REQS[@]}")
 deps_stamp="$VENV/.ops-deps-stamp"
-deps_hash="$(cat "${REQS[@]}" tools/ros2cli/pyproject.toml tools/ops_bag/pyproject.toml 2>/dev/null | sha256sum | cut -c1-16)-$USE_SYSTEM_ROS"
+deps_hash="$(cat "${REQS[@]}" tools/ros2cli/pyproject.toml tools/ops_bag/pyproject.toml tools/ops_bench/pyproject.toml 2>/dev/null | sha256sum | cut -c1-16)-$USE_SYSTEM_ROS"
 if [ "$(cat "$deps_stamp" 2>/dev/null)" != "$deps_hash" ]; then
   req_args=()
   for r in "${REQS[@]}"; do req_args+=(-r "$r"); done
@@ -78,6 +78,9 @@ if [ "$(cat "$deps_stamp" 2>/dev/null)" != "$deps_hash" ]; then
   # The rosbag2/MCAP library of `ros2 bag`, evaluate --record and the Foxglove view (both modes).
   run_logged "installing tools/ops_bag" "$LOG_DIR/ops_bag.log" \
     "$VPY" -m pip install --disable-pip-version-check --no-deps -e tools/ops_bag
+  # `ops-bench`: the benchmarks, figure and model tools, and the helpers the tests import.
+  run_logged "installing tools/ops_bench" "$LOG_DIR/ops_bench.log" \
+    "$VPY" -m pip install --disable-pip-version-check --no-deps -e tools/ops_bench
   if [ "$USE_SYSTEM_ROS" = 0 ]; then
     # The wheels ship no ros2cli: install the project's compatible subset, unless a real one exists.
     if PATH="$(printf '%s' "$PATH" | tr ':' '\n' | grep -v "^$VENV/bin\$" | paste -sd:)" \

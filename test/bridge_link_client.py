@@ -15,7 +15,7 @@ import argparse
 import time
 
 import numpy as np
-from ops_gym_bridge.bridge_env import BridgeError, RosOpsEnv, SimulatorTimeoutError
+from ops_gym_bridge.bridge.bridge_env import BridgeError, RosOpsEnv, SimulatorTimeoutError
 
 
 def say(text: str) -> None:

@@ -5,7 +5,7 @@ import re
 import subprocess
 
 import pytest
-from ros_testing import REPO, assert_no_traceback
+from ops_bench.processes import REPO, assert_no_traceback
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 

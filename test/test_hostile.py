@@ -15,7 +15,8 @@ import time
 
 import numpy as np
 import pytest
-from ros_testing import REPO, TopicObserver, ros2_command
+from ops_bench.observer import TopicObserver
+from ops_bench.processes import REPO, ros2_command
 
 rclpy = pytest.importorskip("rclpy")
 

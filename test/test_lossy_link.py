@@ -1,5 +1,5 @@
 """The loop over a lossy link: the simulator on host A, SPGD on host B, joined through
-scripts/fault_relay.py (ros_testing.RelayedHosts), which drops frames and cuts the link.
+ops_bench.relay (ops_bench.hosts.RelayedHosts), which drops frames and cuts the link.
 
 With 20 % of the frames lost each way the controller keeps at least a fifth of its clean-link
 pace (a lost command or reading is re-sent after a few measured round trips, not after
@@ -8,7 +8,7 @@ re-sends it keeps about two thirds on an idle machine and a third on a busy one)
 lock; after a 3 s outage it steps again within seconds, and nothing exits.
 The tracker holds hard mode through 20 % loss (issue 34: it fell to 0.05 and no test sent a
 lost packet). The heavy schedules (5 / 20 % loss for minutes, 30 s outages, load, three
-controllers) are in scripts/bench_faults.py. Needs root and `ip`; skipped with the reason otherwise.
+controllers) are in `ops-bench faults`. Needs root and `ip`; skipped with the reason otherwise.
 """
 
 from __future__ import annotations
@@ -18,15 +18,8 @@ import time
 
 import numpy as np
 import pytest
-from ros_testing import (
-    NetnsUnavailable,
-    RelayedHosts,
-    assert_no_traceback,
-    executable,
-    netns_unavailable_reason,
-    ros2_command,
-    sim_command,
-)
+from ops_bench.hosts import NetnsUnavailable, RelayedHosts, netns_unavailable_reason
+from ops_bench.processes import assert_no_traceback, executable, ros2_command, sim_command
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 

@@ -7,7 +7,7 @@ import subprocess
 
 import numpy as np
 import pytest
-from ros_testing import REPO, assert_no_traceback, ros2_command
+from ops_bench.processes import REPO, assert_no_traceback, ros2_command
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
 
@@ -188,7 +188,7 @@ def test_authors_observation_model_runs_on_the_oracle_topic(procs, observer, tmp
 
 
 def test_switching_model_hands_over_to_its_holder_over_dds(procs, observer, tmp_path):
-    """A switching model (scripts/make_switch_model.py; here the shipped hard models: n5_hard
+    """A switching model (`ops-bench switch-model`; here the shipped hard models: n5_hard
     acquires, n5_hard_long holds) in the policy node: both parts load, the log says which acts,
     and once the readings stay >= 0.95 the holder takes over."""
     from ops_controller_ros.policy_switch import write_switch_model

@@ -1,8 +1,8 @@
 """The benchmark on a real two-node Ray cluster: the head on host A, a worker node on host B
-(two network namespaces on one link, test/ray_cluster.py), token authentication on, nothing of the
+(two network namespaces on one link, ops_bench.ray_cluster), token authentication on, nothing of the
 project on B. A subset of the smoke profile (10 runs: two seeds of each agent, so that a node B
 that joins late still gets a second run; the whole profile is
-scripts/bench_ray_cluster.py, docs/cluster.md) runs on both nodes, B joining while the benchmark
+`ops-bench ray-cluster`, docs/cluster.md) runs on both nodes, B joining while the benchmark
 runs (its CPU is used from then on); node B is killed while a
 training run is on it: that run is retried on A and everything is stored; the same command again
 has nothing left to do. Needs root and `ip`; skipped with the reason otherwise."""
@@ -17,8 +17,9 @@ import time
 from pathlib import Path
 
 import pytest
-from ray_cluster import RayCluster
-from ros_testing import assert_no_traceback, make_two_hosts
+from ops_bench.hosts import make_two_hosts
+from ops_bench.processes import assert_no_traceback
+from ops_bench.ray_cluster import RayCluster
 
 pytest.importorskip("ray")
 
@@ -69,7 +70,7 @@ def hosts():
 def bench_cmd(cluster, out) -> list[str]:
     # From a folder of its own: Ray puts the driver's folder on the workers' path.
     return [
-        "env", "-C", str(Path(out).parent), sys.executable, "-m", "ops_gym_bridge.benchmark",
+        "env", "-C", str(Path(out).parent), sys.executable, "-m", "ops_gym_bridge.table1.benchmark",
         "--profile", "smoke", "--out", str(out),
         "--ray-address", cluster.address, "--retry-delay", "1", "--status-every", "10", *SUBSET,
     ]  # fmt: skip

@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 import yaml
-from ros_testing import assert_no_traceback, executable
+from ops_bench.processes import assert_no_traceback, executable
 
 pytestmark = pytest.mark.integration
 

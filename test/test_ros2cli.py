@@ -14,8 +14,8 @@ import signal
 import time
 
 import pytest
+from ops_bench.processes import ProcessGroup, assert_no_traceback, ros2_command, run_ros2
 from ros2cli_helpers import DEMO_PKG, env_with_prefix, make_ament_prefix, pid_alive
-from ros_testing import ProcessGroup, assert_no_traceback, ros2_command, run_ros2
 
 # These tests are about the project's subset; where a real ROS 2 provides `ros2`, set-up does not
 # install the subset and there is nothing of ours to test.

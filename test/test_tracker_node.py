@@ -6,7 +6,7 @@ import signal
 
 import numpy as np
 import pytest
-from ros_testing import assert_no_traceback, run_ros2
+from ops_bench.processes import assert_no_traceback, run_ros2
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
 

@@ -1,6 +1,6 @@
 """One rig on two hosts: the simulator on host A, its clients on host B, over a real link.
 
-The hosts are two network namespaces made by the test (ros_testing.TwoHosts: a veth pair, an
+The hosts are two network namespaces made by the test (ops_bench.hosts.TwoHosts: a veth pair, an
 address each, a multicast route), so DDS between them goes over UDP on that link as between two
 computers, and the link can be taken down and brought back. Discovery is ROS 2's default over the
 subnet (conftest keeps the other tests on localhost). Needs root and `ip`; skipped otherwise.
@@ -18,13 +18,8 @@ import time
 
 import numpy as np
 import pytest
-from ros_testing import (
-    PYTHON,
-    REPO,
-    assert_no_traceback,
-    executable,
-    make_two_hosts,
-)
+from ops_bench.hosts import make_two_hosts
+from ops_bench.processes import PYTHON, REPO, assert_no_traceback, executable
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
@@ -88,7 +83,7 @@ def spgd_iterations(proc) -> int:
 
 def test_without_root_the_reason_to_skip_is_given():
     """Where namespaces cannot be made, the module is skipped with the reason (here: not root)."""
-    code = "from ros_testing import netns_unavailable_reason as r; print(r())"
+    code = "from ops_bench.hosts import netns_unavailable_reason as r; print(r())"
     if os.geteuid() != 0:
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     elif shutil.which("setpriv") is None:
@@ -99,9 +94,8 @@ def test_without_root_the_reason_to_skip_is_given():
             [*nobody, sys.executable, "-c", code],
             capture_output=True,
             text=True,
-            cwd=REPO / "test",
+            cwd=REPO,
             timeout=60,
-            env=dict(os.environ, PYTHONPATH=str(REPO / "test")),
         )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "making network namespaces (ip netns add) needs root"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from ops_bench.latency_check import run
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
 from ops_controller_ros.tracker.latency_check import pair_readings
@@ -22,23 +23,9 @@ def test_readings_pair_with_the_command_acting_that_many_steps_before():
     assert pair_readings(commands, readings, 5) is None
 
 
-def _run(rig_latency, told, mode, seed, steps=150, params=None):
-    sim = BatchedSimulation(make_config(5, mode, "test", latency_steps=rig_latency), 1, seed=seed)
-    tracker = PhaseTracker(make_config(5, mode, "test", latency_steps=told), params, seed=seed)
-    sim.reset(seed=seed)
-    found_at, powers = None, []
-    for k in range(steps):
-        res = sim.step_setpoints(next_command(tracker)[None])
-        tracker.observe(float(res.power[0]), res.pulse_energies[0])
-        powers.append(float(res.power[0]))
-        if tracker.latency_changes and found_at is None:
-            found_at = k + 1
-    return tracker, found_at, np.array(powers)
-
-
 @pytest.mark.parametrize(("rig", "told", "seed"), [(2, 1, 41), (1, 0, 42), (0, 1, 43)])
 def test_a_wrong_latency_is_found_within_50_readings_and_the_tracker_recovers(rig, told, seed):
-    tracker, found_at, powers = _run(rig, told, "hard", seed)
+    tracker, found_at, powers = run(rig, told, "hard", seed)
     assert tracker.latency == rig and tracker.latency_told == told
     assert found_at is not None and found_at <= 50, found_at
     assert f"a latency of {rig} steps, not the {told}" in tracker.latency_note
@@ -46,11 +33,11 @@ def test_a_wrong_latency_is_found_within_50_readings_and_the_tracker_recovers(ri
 
 
 def test_the_told_latency_is_kept_and_the_check_can_be_switched_off():
-    tracker, found_at, powers = _run(2, 2, "hard", 44)
+    tracker, found_at, powers = run(2, 2, "hard", 44)
     assert found_at is None and tracker.latency == 2 and tracker.latency_note is None
     assert powers[-20:].mean() >= 0.95
     off = TrackerParams(latency_check_after=0)
-    tracker, found_at, powers = _run(2, 1, "hard", 45, steps=80, params=off)
+    tracker, found_at, powers = run(2, 1, "hard", 45, steps=80, params=off)
     assert found_at is None and tracker.latency_checks == 0  # told wrong, never checked
     assert powers[-20:].mean() < 0.5  # what the check is there for
 
@@ -58,7 +45,7 @@ def test_the_told_latency_is_kept_and_the_check_can_be_switched_off():
 def test_taking_a_latency_drops_the_work_of_the_old_pairing():
     """Seen over DDS: a deferred knot test of the old pairing, run after the window was
     emptied, crashed the node. Taking a latency drops it; the tracker acquires anew."""
-    tracker, _, _ = _run(1, 1, "hard", 46, steps=60)
+    tracker, _, _ = run(1, 1, "hard", 46, steps=60)
     assert tracker.locked
     tracker._knot_job = object()  # a knot test still to run (defer_knot_test)
     tracker._take_latency(2)

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ops_gym_bridge.rollouts import controller_episodes, episode_seed, policy_episodes
+from ops_gym_bridge.experiments import learn
+from ops_gym_bridge.experiments.rollouts import controller_episodes, episode_seed, policy_episodes
+from ops_gym_bridge.experiments.summary import summarize
+from ops_gym_bridge.table1 import bench_worker
 from ops_sim_ros.config import make_config
 
-from ops_gym_bridge import bench_worker
-from ops_gym_bridge import train as train_cli
 from ops_sim_ros import OpsEnv
 
 pytestmark = pytest.mark.timeout(180)
@@ -36,16 +37,17 @@ def test_agents_and_controllers_run_the_same_episodes():
 
 
 def test_benchmark_trains_through_train(tmp_path, monkeypatch):
-    """bench_worker.train runs train's resolve_run / build_env / build_model / learn_and_save
-    (no loop of its own): the model directory is train's, with the run's observation set."""
+    """bench_worker.train builds through experiments.build.build_model and trains with
+    learn_and_save, as train does (no loop of its own): the model directory is train's, with the
+    run's observation set."""
     calls = []
-    learn = train_cli.learn_and_save
+    learn_and_save = learn.learn_and_save
 
     def counted(run):
         calls.append(run.args)
-        return learn(run)
+        return learn_and_save(run)
 
-    monkeypatch.setattr(train_cli, "learn_and_save", counted)
+    monkeypatch.setattr(learn, "learn_and_save", counted)
     spec = {
         "id": "n2_easy_td3_s0", "kind": "train", "algo": "td3", "stage": 2, "mode": "easy",
         "seed": 0, "timesteps": 300, "episode_steps": 50, "detector": "total",
@@ -53,7 +55,8 @@ def test_benchmark_trains_through_train(tmp_path, monkeypatch):
         "hyperparams": ["learning_starts=100", "batch_size=32", "net_arch=[16,16]"],
         "eval": {"seeds": [0], "episodes": 2, "steps": 10},
     }  # fmt: skip
-    model, meta = bench_worker.train(spec, tmp_path)
+    policy = bench_worker.train(spec, tmp_path)
+    model, meta = policy.model, policy.metadata
     assert len(calls) == 1 and calls[0].observation == "authors"
     assert meta["command_line"][:4] == ["ros2", "run", "ops_gym_bridge", "train"]
     assert meta["hyperparams_set"] == "paper" and meta["observation"] == "authors"
@@ -69,7 +72,7 @@ def test_benchmark_trains_through_train(tmp_path, monkeypatch):
 def test_benchmark_trains_with_the_named_hyperparameter_set(tmp_path):
     """--hyperparams-set authors reaches train: the run's metadata names the set and holds the
     authors' code's values (SAC: lr 3e-4, 100k buffer, no gSDE, three layers), overrides on top."""
-    from ops_gym_bridge import benchmark
+    from ops_gym_bridge.table1 import benchmark
 
     args = benchmark.build_parser().parse_args(
         ["--profile", "smoke", "--algos", "sac", "--modes", "easy", "--controllers",
@@ -80,7 +83,7 @@ def test_benchmark_trains_with_the_named_hyperparameter_set(tmp_path):
     spec = {**spec, "timesteps": 150, "hyperparams": ["learning_starts=50", "batch_size=16"]}
     argv = bench_worker.train_argv(spec, tmp_path, resume=False, remaining=150)
     assert argv[argv.index("--hyperparams-set") + 1] == "authors"
-    _, meta = bench_worker.train(spec, tmp_path)
+    meta = bench_worker.train(spec, tmp_path).metadata
     hp = meta["hyperparams"]
     assert meta["hyperparams_set"] == "authors"
     assert hp["learning_rate"] == 3e-4 and hp["buffer_size"] == 100_000
@@ -97,14 +100,15 @@ def _stored_run(root, observation, kind, name, final):
             "observation": observation, "seed": 0 if kind == "train" else None}  # fmt: skip
     spec["algo" if kind == "train" else "controller"] = name
     power = np.full((3, 11), final)
-    split = bench_worker.summarize([{"power": power}, {"power": power}])
+    returns = np.zeros(3)
+    split = summarize([{"power": power, "returns": returns}, {"power": power, "returns": returns}])
     ev = {"splits": {"train": split, "test": split}, "transfer": {}}
     bench_worker.write_json(d / "run.json", {"spec": spec, "timesteps": 100})
     bench_worker.write_json(d / "evaluation.json", ev)
 
 
 def test_report_puts_two_observation_sets_side_by_side(tmp_path):
-    from ops_gym_bridge import report
+    from ops_gym_bridge.table1 import report
 
     for label, observation, td3 in (("authors", "authors", 0.9), ("rig", "rig", 0.2)):
         _stored_run(tmp_path / label, observation, "train", "td3", td3)
@@ -124,7 +128,7 @@ def test_report_puts_two_observation_sets_side_by_side(tmp_path):
 def test_the_rig_of_a_benchmark_reaches_training_evaluation_and_controllers(tmp_path):
     """benchmark --realism / --rig: every run's spec holds the rig; training runs get it on
     their command line, evaluations and the controllers' nominal model in their config."""
-    from ops_gym_bridge import benchmark
+    from ops_gym_bridge.table1 import benchmark
 
     args = benchmark.build_parser().parse_args(
         ["--profile", "smoke", "--algos", "td3", "--modes", "hard", "--controllers", "tracker",

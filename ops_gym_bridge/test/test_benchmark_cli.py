@@ -14,30 +14,21 @@ import time
 from pathlib import Path
 
 import pytest
+from ops_bench.processes import executable
 from ops_controller_ros.controllers import CONTROLLERS
-from ros_testing import executable
+from ops_gym_bridge.table1.report import FILES
 
 pytestmark = pytest.mark.timeout(300)
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMITTED = ROOT / "docs" / "results" / "n5_quick"
-FILES = (
-    "table1.md",
-    "table1.csv",
-    "fig7_training.png",
-    "fig8_control.png",
-    "fig9_stages.png",
-    "fig10_convergence.png",
-    "fig11_transfer.png",
-    "fig17_traces.png",
-)
 
 
 def bench_cmd(out, *extra) -> list[str]:
     return [
         sys.executable,
         "-m",
-        "ops_gym_bridge.benchmark",
+        "ops_gym_bridge.table1.benchmark",
         "--profile",
         "smoke",
         "--out",
@@ -201,7 +192,7 @@ def test_report_reproduces_committed_table1(tmp_path):
         src = COMMITTED / "runs" / rid
         if (src / "run.json").exists():
             shutil.copytree(src, runs / rid, ignore=shutil.ignore_patterns("model.zip"))
-    from ops_gym_bridge.report import write_report
+    from ops_gym_bridge.table1.report import write_report
 
     write_report(tmp_path / "n5", tmp_path / "out")
     assert (tmp_path / "out" / "table1.csv").read_text() == (COMMITTED / "table1.csv").read_text()
@@ -219,7 +210,7 @@ def test_report_reproduces_committed_table1(tmp_path):
 def test_a_folder_holds_one_protocol(tmp_path, capsys, stored, option, message):
     """Runs of another observation set, hyper-parameter set or detector are refused before
     anything runs or is written (a folder without the key holds the old default)."""
-    from ops_gym_bridge import benchmark
+    from ops_gym_bridge.table1 import benchmark
 
     settings = {"detector": "polarizer", **stored}
     (tmp_path / "benchmark.json").write_text(json.dumps(settings))

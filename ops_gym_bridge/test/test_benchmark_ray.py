@@ -38,7 +38,7 @@ def free_port() -> int:
 
 
 def bench(out: Path, address: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "ops_gym_bridge.benchmark", "--profile", "smoke"]
+    cmd = [sys.executable, "-m", "ops_gym_bridge.table1.benchmark", "--profile", "smoke"]
     cmd += ["--out", str(out), "--ray-address", address]
     return subprocess.run(
         cmd, capture_output=True, text=True, timeout=120, env=env, stdin=subprocess.DEVNULL
@@ -149,7 +149,7 @@ def test_auth_disabled_against_a_token_cluster_is_named(token_head, tmp_path):
 
 def test_the_right_token_passes_and_turns_token_mode_on(token_head, tmp_path, monkeypatch):
     """The head's token copied to this machine is enough: RAY_AUTH_MODE=token is set for Ray."""
-    from ops_gym_bridge.ray_pool import check_address
+    from ops_gym_bridge.table1.ray_pool import check_address
 
     address, token = token_head
     monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
@@ -174,7 +174,7 @@ def test_ctrl_c_brings_the_work_back_and_the_same_command_resumes(tmp_path):
 
     out = tmp_path / "b"
     rid = "n2_easy_sac_s0"
-    base = [sys.executable, "-m", "ops_gym_bridge.benchmark", "--profile", "smoke"]
+    base = [sys.executable, "-m", "ops_gym_bridge.table1.benchmark", "--profile", "smoke"]
     base += ["--out", str(out), "--ray-address", "local", "--jobs", "1", "--algos", "sac"]
     base += ["--modes", "easy", "--controllers", "--extra-stages", "--save-every", "100000"]
     # The local node's TMPDIR (its tasks' folders; short: Ray's sockets go there too). A foreign

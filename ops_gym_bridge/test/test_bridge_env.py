@@ -10,13 +10,13 @@ import time
 import gymnasium as gym
 import numpy as np
 import pytest
-from ops_gym_bridge.bridge_env import (
+from ops_bench.processes import start_sim
+from ops_gym_bridge.bridge.bridge_env import (
     LockstepError,
     RosOpsEnv,
     SimulatorTimeoutError,
     StageMismatchError,
 )
-from ros_testing import start_sim
 
 from ops_gym_bridge import ENV_ID
 from ops_sim_ros import OpsEnv
@@ -32,7 +32,7 @@ def sim3(module_procs):
 
 @pytest.fixture
 def observer_bridge(sim3):
-    from ros_testing import TopicObserver
+    from ops_bench.observer import TopicObserver
 
     obs = TopicObserver(namespace="/bridge")
     yield obs

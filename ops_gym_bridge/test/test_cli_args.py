@@ -5,9 +5,10 @@ from __future__ import annotations
 import json
 
 import pytest
+from ops_gym_bridge.experiments import evaluate, train
 from ops_sim_ros.config import DETECTORS, MODES
 
-from ops_gym_bridge import cli_args, evaluate, train
+from ops_gym_bridge import cli_args
 
 
 def test_parse_key_values_types_and_errors():
@@ -56,7 +57,7 @@ def test_controller_spgd_equals_the_spgd_synonym(tmp_path):
 
 
 def test_env_overrides_reach_the_simulator_not_the_controller(tmp_path, monkeypatch):
-    from ops_gym_bridge import rollouts
+    from ops_gym_bridge.experiments import rollouts
 
     seen = {}
     real = rollouts.controller_episodes

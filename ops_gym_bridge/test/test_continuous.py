@@ -8,9 +8,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from ops_gym_bridge.experiments import continuous, evaluate
 from ops_sim_ros.env import OpsEnv
-
-from ops_gym_bridge import continuous, evaluate
 
 
 def test_lock_figures_count_runs_after_the_first_lock():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from ops_gym_bridge import evaluate
+from ops_gym_bridge.experiments import evaluate
 
 
 def test_evaluate_controller_tracker_with_a_model_mismatch(tmp_path):

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from ops_gym_bridge import hyperparams as hp
+from ops_gym_bridge.experiments import hyperparams as hp
 
 # (algo, key, value as in the paper's tables)
 PAPER = [

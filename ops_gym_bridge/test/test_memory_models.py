@@ -10,10 +10,10 @@ import shutil
 import numpy as np
 import pytest
 from ops_controller_ros.policy_io import PolicyLoadError, PolicyRunner, load_policy
+from ops_gym_bridge.experiments import hyperparams as hp
+from ops_gym_bridge.experiments import train
 from ops_sim_ros.observation import ObservationSpec, pulse_energies_from_trace
 
-from ops_gym_bridge import hyperparams as hp
-from ops_gym_bridge import train
 from ops_sim_ros import OpsEnv
 
 pytestmark = pytest.mark.timeout(120)
@@ -98,7 +98,7 @@ def test_policy_runner_builds_the_envs_observations(memory_model):
 
 
 def test_evaluate_runs_a_memory_model(memory_model, tmp_path):
-    from ops_gym_bridge import evaluate
+    from ops_gym_bridge.experiments import evaluate
 
     code = evaluate.run(
         [

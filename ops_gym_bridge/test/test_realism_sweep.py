@@ -5,8 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-
-from ops_gym_bridge import realism_sweep
+from ops_gym_bridge.experiments import realism_sweep
 
 
 def _args(*argv):

@@ -6,7 +6,7 @@ the last bits of floating-point arithmetic, which differ between CPUs and BLAS k
 recorded n5_hard episode came out 0.61 on one machine and 0.76 on another). Instead:
 
 * deterministic checks that do not go through the loop (``eval/reference_actions.npz``, written by
-  ``scripts/make_reference_actions.py``): the model's environment still gives the observations the
+  ``ops-bench reference-actions``): the model's environment still gives the observations the
   model was trained on, and the loaded policy maps stored observations to the stored actions — a
   changed observation layout or scaling, a damaged model.zip, lost normalization statistics or a
   broken loader fails here;
@@ -18,21 +18,18 @@ recorded n5_hard episode came out 0.61 on one machine and 0.76 on another). Inst
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from ops_bench.reference_actions import model_env
 from ops_controller_ros.policy_io import load_policy
-from ops_gym_bridge.evaluate import build_parser, evaluate
+from ops_gym_bridge.experiments.evaluate import build_parser, evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "models"
 SHIPPED = sorted(p.parent for p in MODELS.glob("*/model.zip"))
 IDS = [p.name for p in SHIPPED]
-
-sys.path.insert(0, str(ROOT / "scripts"))
-from make_reference_actions import model_env  # noqa: E402
 
 
 def test_models_are_shipped():

@@ -7,8 +7,8 @@ import subprocess
 import time
 
 import pytest
+from ops_bench.processes import executable, start_sim
 from ops_controller_ros.policy_io import load_policy, read_metadata
-from ros_testing import executable, start_sim
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
@@ -28,28 +28,10 @@ def test_train_through_the_bridge_produces_a_model(procs, tmp_path):
     out = tmp_path / "ros_model"
     t0 = time.monotonic()
     done = train(
-        "--algo",
-        "sac",
-        "--stage",
-        2,
-        "--mode",
-        "easy",
-        "--backend",
-        "ros",
-        "--namespace",
-        "/trainer",
-        "--timesteps",
-        400,
-        "--seed",
-        2,
-        "--out",
-        out,
-        "--no-progress",
-        "--hyperparams",
-        "learning_starts=100",
-        "net_arch=[32,32]",
-        "batch_size=32",
-    )
+        "--algo", "sac", "--stage", 2, "--mode", "easy", "--backend", "ros",
+        "--namespace", "/trainer", "--timesteps", 400, "--seed", 2, "--out", out, "--no-progress",
+        "--hyperparams", "learning_starts=100", "net_arch=[32,32]", "batch_size=32",
+    )  # fmt: skip
     assert done.returncode == 0, done.stdout + done.stderr
     assert "Traceback" not in done.stderr
     assert "[train] done: 400 steps" in done.stdout
@@ -66,25 +48,11 @@ def test_train_through_the_bridge_produces_a_model(procs, tmp_path):
 def test_train_without_simulator_fails_clearly(tmp_path):
     out = tmp_path / "nothing"
     done = train(
-        "--algo",
-        "td3",
-        "--stage",
-        3,
-        "--mode",
-        "easy",
-        "--backend",
-        "ros",
-        "--namespace",
-        "/absent",
-        "--ros-timeout",
-        1,
-        "--timesteps",
-        100,
-        "--out",
-        out,
+        "--algo", "td3", "--stage", 3, "--mode", "easy", "--backend", "ros",
+        "--namespace", "/absent", "--ros-timeout", 1, "--timesteps", 100, "--out", out,
         "--no-progress",
         timeout=60,
-    )
+    )  # fmt: skip
     assert done.returncode == 1
     assert "no simulator answered on /absent/ops/reset" in done.stderr, done.stderr
     assert "Traceback" not in done.stderr
@@ -101,31 +69,14 @@ def test_ros_backend_needs_one_namespace_per_env(tmp_path):
 def test_ctrl_c_while_training_through_the_bridge_saves_a_model(procs, tmp_path):
     start_sim(procs, stage=2, mode="easy", namespace="/stopper", name="sim")
     out = tmp_path / "stopped"
-    proc = procs.start(
-        [
-            *executable("ops_gym_bridge", "train"),
-            "--algo",
-            "td3",
-            "--stage",
-            "2",
-            "--mode",
-            "easy",
-            "--backend",
-            "ros",
-            "--namespace",
-            "/stopper",
-            "--timesteps",
-            "100000",
-            "--out",
-            str(out),
-            "--hyperparams",
-            "learning_starts=100",
-            "train_freq=10",
-            "gradient_steps=10",
-            "net_arch=[32,32]",
-        ],
-        name="train",
-    )
+    argv = [
+        *executable("ops_gym_bridge", "train"),
+        "--algo", "td3", "--stage", "2", "--mode", "easy", "--backend", "ros",
+        "--namespace", "/stopper", "--timesteps", "100000", "--out", str(out),
+        "--hyperparams", "learning_starts=100", "train_freq=10", "gradient_steps=10",
+        "net_arch=[32,32]",
+    ]  # fmt: skip
+    proc = procs.start(argv, name="train")
     proc.wait_for(r"\[train\] training started", timeout=60)
     proc.wait_for(r"\b([2-9]\d\d|\d{4,})/100000\b", timeout=90)  # learning under way
     proc.signal(signal.SIGINT)

@@ -8,10 +8,9 @@ import pickle
 
 import numpy as np
 import pytest
-from ops_gym_bridge.envs import make_vec_env
-from ops_gym_bridge.rewards import nines_reward, wrap_training_reward
-
-from ops_gym_bridge import train
+from ops_gym_bridge.experiments import train
+from ops_gym_bridge.experiments.envs import make_vec_env
+from ops_gym_bridge.experiments.rewards import nines_reward, wrap_training_reward
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -3,7 +3,7 @@
 The physics, the tracker's fits and the policies' numpy work are small matrix products: a second
 BLAS thread gains nothing there, and on a busy machine (a node beside another node, a training
 beside a rig) an OpenBLAS thread that waits for a core stalls the product it belongs to. Measured
-(`scripts/bench_tracker_compute.py --busy 2`, docs/benchmarks.md): with two busy processes on a
+(`ops-bench tracker-compute --busy 2`, docs/benchmarks.md): with two busy processes on a
 2-core machine the tracker's knot test took 196 ms with OpenBLAS's default of one thread per core,
 8.7 ms with one thread.
 Every node (``run_node``) and the ``train`` / ``evaluate`` CLIs call :func:`limit_blas_threads`

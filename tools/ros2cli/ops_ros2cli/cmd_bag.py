@@ -36,6 +36,13 @@ def _positive_float(string):
 
 
 def add_verbs(verbs):
+    """The verbs of ``ros2 bag``, one parser each."""
+    _add_record(verbs)
+    _add_info(verbs)
+    _add_play(verbs)
+
+
+def _add_record(verbs):
     p = verbs.add_parser(
         "record",
         help="Record ROS data to a bag",
@@ -83,6 +90,8 @@ def add_verbs(verbs):
     p.add_argument("--use-sim-time", action="store_true", help="Accepted; ignored")
     p.set_defaults(_main=main_record)
 
+
+def _add_info(verbs):
     p = verbs.add_parser(
         "info",
         help="Print information about a bag to the screen",
@@ -92,6 +101,8 @@ def add_verbs(verbs):
     p.add_argument("-s", "--storage", default="mcap", help="Storage identifier (only 'mcap').")
     p.set_defaults(_main=main_info)
 
+
+def _add_play(verbs):
     p = verbs.add_parser(
         "play", help="Play back ROS data from a bag", description="Play back ROS data from a bag"
     )
@@ -152,13 +163,120 @@ def _request_qos(infos):
     return profile
 
 
+class _Recorder:
+    """What ``ros2 bag record`` does while the node runs: discover the wanted topics, subscribe
+    (each message written as it comes), flush, and stop on a signal, a write error or
+    ``--max-duration``."""
+
+    def __init__(self, cli, writer, args, regex, explicit, signals):
+        self.cli, self.writer, self.args, self.regex = cli, writer, args, regex
+        self.explicit, self.signals = explicit, signals
+        self.failure = []
+        self.warned = set()
+        self.subscriptions = []
+
+    def _callback(self, topic):
+        from ops_bag import BagWriteError
+
+        def callback(data):
+            if self.failure:
+                return
+            try:
+                self.writer.write(topic, data, time.time_ns())
+            except BagWriteError as exc:
+                self.failure.append(exc)
+
+        return callback
+
+    def _subscribe(self, name, types) -> None:
+        from ops_bag import qos as qos_io
+
+        from ops_ros2cli.msgutil import get_message
+
+        if len(types) != 1:
+            self.warned.add(name)
+            _log("WARN", LOGGER_RECORDER, f"Topic '{name}' has several types: skipped")
+            return
+        infos = self.cli.node.get_publishers_info_by_topic(name)
+        if not infos and not self.args.include_unpublished_topics:
+            return  # like rosbag2: wait for a publisher, whose QoS the request adapts to
+        try:
+            msg_class = get_message(types[0])
+            self.writer.add_topic(name, types[0], [qos_io.to_dict(i.qos_profile) for i in infos])
+        except (AttributeError, ImportError, ValueError) as exc:
+            self.warned.add(name)
+            _log("WARN", LOGGER_RECORDER, f"Topic '{name}' not recorded: {exc}")
+            return
+        self.subscriptions.append(
+            self.cli.node.create_subscription(
+                msg_class, name, self._callback(name), _request_qos(infos), raw=True
+            )
+        )
+        _log("INFO", LOGGER_RECORDER, f"Subscribed to topic '{name}'")
+
+    def discover(self) -> bool:
+        """Subscribe to the wanted topics seen so far; False once no more can come."""
+        args, writer = self.args, self.writer
+        for name, types in self.cli.node.get_topic_names_and_types():
+            if writer.has_topic(name) or name in self.warned:
+                continue
+            if _wanted(name, args, self.regex, self.explicit):
+                self._subscribe(name, types)
+        return not (
+            self.explicit
+            and all(writer.has_topic(t) for t in self.explicit)
+            and not (args.all or args.all_topics or self.regex)
+        )
+
+    def _flush(self) -> None:
+        from ops_bag import BagWriteError
+
+        if not self.failure:
+            try:  # also while no message comes: what was received reaches the disk
+                self.writer.flush_if_due()
+            except BagWriteError as exc:
+                self.failure.append(exc)
+
+    def run(self) -> str | None:
+        """Record until stopped; returns why ("max duration", "interrupt") or None (a failure)."""
+        start = time.monotonic()
+        next_discovery = 0.0
+        stopped_by = None
+        try:
+            keep_discovering = True
+            while not self.signals:
+                now = time.monotonic()
+                if self.args.max_duration is not None and now - start >= self.args.max_duration:
+                    stopped_by = "max duration"
+                    break
+                if keep_discovering and now >= next_discovery:
+                    keep_discovering = self.discover()
+                    if not keep_discovering:
+                        _log(
+                            "INFO",
+                            LOGGER_RECORDER,
+                            "All requested topics are subscribed. Stopping discovery...",
+                        )
+                    next_discovery = now + DISCOVERY_PERIOD_S
+                self.cli.spin_once(graph.SLICE)
+                self._flush()
+                if self.failure:
+                    break
+        except Interrupted:
+            self.signals.append(signal.SIGINT)
+        if self.signals:
+            stopped_by = "interrupt"
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(signum, signal.SIG_IGN)
+        for sub in self.subscriptions:
+            self.cli.node.destroy_subscription(sub)
+        return stopped_by
+
+
 def main_record(args):
     import re
 
     from ops_bag import BagExistsError, BagWriteError, BagWriter
-    from ops_bag import qos as qos_io
-
-    from ops_ros2cli.msgutil import get_message
 
     if args.storage != "mcap":
         raise RuntimeError(f"storage '{args.storage}' is not provided here; use mcap")
@@ -174,7 +292,6 @@ def main_record(args):
     except OSError as exc:
         _log("ERROR", "ros2bag", f"cannot create '{output}': {exc.strerror}", sys.stderr)
         return 1
-    failure = []
     # Ctrl-C / SIGTERM only set a flag: the loop stops between two messages and the bag is
     # finalized (never interrupted in the middle of writing a record).
     signals = []
@@ -186,90 +303,11 @@ def main_record(args):
         _log("INFO", LOGGER_RECORDER, f"Opened bag '{writer.file_path}' for writing.")
         _log("INFO", LOGGER_RECORDER, "Listening for topics...")
         _log("INFO", LOGGER_RECORDER, "Recording...")
-        start = time.monotonic()
-        next_discovery = 0.0
-        warned = set()
-        subscriptions = []
+        recorder = _Recorder(cli, writer, args, regex, explicit, signals)
+        stopped_by = recorder.run()
 
-        def make_callback(topic):
-            def callback(data):
-                if failure:
-                    return
-                try:
-                    writer.write(topic, data, time.time_ns())
-                except BagWriteError as exc:
-                    failure.append(exc)
-
-            return callback
-
-        def discover():
-            for name, types in cli.node.get_topic_names_and_types():
-                if writer.has_topic(name) or name in warned:
-                    continue
-                if not _wanted(name, args, regex, explicit):
-                    continue
-                if len(types) != 1:
-                    warned.add(name)
-                    _log("WARN", LOGGER_RECORDER, f"Topic '{name}' has several types: skipped")
-                    continue
-                infos = cli.node.get_publishers_info_by_topic(name)
-                if not infos and not args.include_unpublished_topics:
-                    continue  # like rosbag2: wait for a publisher, whose QoS the request adapts to
-                try:
-                    msg_class = get_message(types[0])
-                    writer.add_topic(name, types[0], [qos_io.to_dict(i.qos_profile) for i in infos])
-                except (AttributeError, ImportError, ValueError) as exc:
-                    warned.add(name)
-                    _log("WARN", LOGGER_RECORDER, f"Topic '{name}' not recorded: {exc}")
-                    continue
-                subscriptions.append(
-                    cli.node.create_subscription(
-                        msg_class, name, make_callback(name), _request_qos(infos), raw=True
-                    )
-                )
-                _log("INFO", LOGGER_RECORDER, f"Subscribed to topic '{name}'")
-            return not (
-                explicit
-                and all(writer.has_topic(t) for t in explicit)
-                and not (args.all or args.all_topics or regex)
-            )
-
-        stopped_by = None
-        try:
-            keep_discovering = True
-            while not signals:
-                now = time.monotonic()
-                if args.max_duration is not None and now - start >= args.max_duration:
-                    stopped_by = "max duration"
-                    break
-                if keep_discovering and now >= next_discovery:
-                    keep_discovering = discover()
-                    if not keep_discovering:
-                        _log(
-                            "INFO",
-                            LOGGER_RECORDER,
-                            "All requested topics are subscribed. Stopping discovery...",
-                        )
-                    next_discovery = now + DISCOVERY_PERIOD_S
-                cli.spin_once(graph.SLICE)
-                if not failure:
-                    try:  # also while no message comes: what was received reaches the disk
-                        writer.flush_if_due()
-                    except BagWriteError as exc:
-                        failure.append(exc)
-                if failure:
-                    break
-        except Interrupted:
-            signals.append(signal.SIGINT)
-        if signals:
-            stopped_by = "interrupt"
-            for signum in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(signum, signal.SIG_IGN)
-        for sub in subscriptions:
-            cli.node.destroy_subscription(sub)
-
-    if failure:
-        _log("ERROR", LOGGER_RECORDER, str(failure[0]), sys.stderr)
+    if recorder.failure:
+        _log("ERROR", LOGGER_RECORDER, str(recorder.failure[0]), sys.stderr)
         with contextlib.suppress(BagWriteError):
             writer.close()
         return 1

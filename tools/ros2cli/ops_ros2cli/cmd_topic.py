@@ -40,6 +40,16 @@ def _positive_float(string):
 
 
 def add_verbs(verbs):
+    """The verbs of ``ros2 topic``, one parser each."""
+    _add_list(verbs)
+    _add_echo(verbs)
+    _add_hz(verbs)
+    _add_pub(verbs)
+    _add_info(verbs)
+    _add_type(verbs)
+
+
+def _add_list(verbs):
     p = verbs.add_parser(
         "list",
         help="Output a list of available topics",
@@ -60,6 +70,8 @@ def add_verbs(verbs):
     )
     p.set_defaults(_main=main_list)
 
+
+def _add_echo(verbs):
     p = verbs.add_parser(
         "echo", help="Output messages from a topic", description="Output messages from a topic"
     )
@@ -109,6 +121,8 @@ def add_verbs(verbs):
     )
     p.set_defaults(_main=main_echo)
 
+
+def _add_hz(verbs):
     p = verbs.add_parser(
         "hz",
         help="Print the average receiving rate to screen",
@@ -143,6 +157,8 @@ def add_verbs(verbs):
     )
     p.set_defaults(_main=main_hz)
 
+
+def _add_pub(verbs):
     p = verbs.add_parser(
         "pub", help="Publish a message to a topic", description="Publish a message to a topic"
     )
@@ -201,6 +217,8 @@ def add_verbs(verbs):
     add_qos_arguments(p, "publish", "default")
     p.set_defaults(_main=main_pub)
 
+
+def _add_info(verbs):
     p = verbs.add_parser(
         "info",
         help="Print information about a topic",
@@ -217,6 +235,8 @@ def add_verbs(verbs):
     )
     p.set_defaults(_main=main_info)
 
+
+def _add_type(verbs):
     p = verbs.add_parser("type", help="Print a topic's type", description="Print a topic's type")
     graph.add_spin_time_argument(p)
     p.add_argument("topic_name", help="Name of the ROS topic to get type (e.g. '/chatter')")

@@ -1,0 +1,268 @@
+"""Train a built run (:mod:`.build`) and save it: model, replay buffer, normalization, the
+metadata the policy runner reads (``ops_controller_ros.policy_io``), checkpoints and the best
+model of ``--eval-freq``. Ctrl-C / SIGTERM stop training and save a usable model.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+from ops_sim_ros.config import make_config
+
+from .envs import final_powers
+from .training_run import TrainRun, observation_options
+
+_STOP_SIGNALS: list[int] = []  # Ctrl-C / SIGTERM received while training
+
+
+def _stop_to_interrupt(signum, frame):
+    """Ctrl-C and SIGTERM stop a training run the same way. Recorded as well as raised: a
+    KeyboardInterrupt raised while rclpy converts a message in C++ reaches Python as a
+    RuntimeError ("Unable to convert call argument"), which is still a requested stop."""
+    _STOP_SIGNALS.append(signum)
+    raise KeyboardInterrupt
+
+
+def _normalization_stats(venv) -> dict | None:
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if not isinstance(venv, VecNormalize):
+        return None
+    return {
+        "obs_mean": venv.obs_rms.mean.tolist(),
+        "obs_var": venv.obs_rms.var.tolist(),
+        "clip_obs": float(venv.clip_obs),
+        "epsilon": float(venv.epsilon),
+    }
+
+
+def build_metadata(
+    args,
+    params: dict,
+    model,
+    venv,
+    argv: list[str],
+    wall_s: float,
+    interrupted: bool,
+    previous: dict | None,
+) -> dict[str, Any]:
+    from ops_controller_ros.policy_io import library_versions
+
+    from ops_sim_ros import OpsEnv
+
+    ref = OpsEnv(
+        stage=args.stage,
+        mode=args.mode,
+        split=args.split,
+        detector=args.detector,
+        max_episode_steps=args.episode_steps,
+        observation_options=observation_options(args),
+        **args.rig_config,
+    )
+    history = list((previous or {}).get("history", []))
+    history.append(
+        {
+            "command_line": argv,
+            "timesteps": int(model.num_timesteps),
+            "wall_s": round(wall_s, 2),
+            "interrupted": interrupted,
+            "finished": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        }
+    )
+    powers = final_powers(model.ep_info_buffer or [])
+    return {
+        "algo": args.algo,
+        "stage": args.stage,
+        "mode": args.mode,
+        "split": args.split,
+        "detector": args.detector,
+        "action_type": ref.action_type,
+        "max_step_fs": float(ref.config.max_step_fs),
+        "observation_spec": ref.obs_spec.to_dict(),
+        "observation_shape": list(ref.observation_space.shape),
+        "action_shape": list(ref.action_space.shape),
+        "config": ref.config.to_dict(),
+        "episode_steps": args.episode_steps,
+        "normalization": _normalization_stats(venv),
+        "versions": library_versions(),
+        "command_line": argv,
+        "timesteps": int(model.num_timesteps),
+        "seed": args.seed,
+        "backend": args.backend,
+        "n_envs": args.n_envs,
+        "obs_history": args.obs_history,
+        "observation": args.observation,
+        "rig": args.rig_config,
+        "reward": args.reward,
+        "hyperparams_set": args.hyperparams_set,
+        "continue_prob": args.continue_prob,
+        "hyperparams": params,
+        "interrupted": interrupted,
+        "train_final_power_mean": float(powers.mean()) if powers.size else None,
+        "history": history,
+    }
+
+
+def _save(
+    out: Path,
+    args,
+    params,
+    model,
+    venv,
+    argv,
+    wall_s,
+    interrupted,
+    previous,
+    replay: bool = True,
+    extra: dict | None = None,
+) -> None:
+    from ops_controller_ros.policy_io import save_metadata
+
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / "model.tmp.zip"
+    model.save(str(tmp))
+    tmp.replace(out / "model.zip")
+    if replay and hasattr(model, "replay_buffer") and model.replay_buffer is not None:
+        model.save_replay_buffer(str(out / "replay_buffer.pkl"))
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if isinstance(venv, VecNormalize):
+        venv.save(str(out / "vecnormalize.pkl"))
+    meta = build_metadata(args, params, model, venv, argv, wall_s, interrupted, previous)
+    save_metadata(out, {**meta, **(extra or {})})
+
+
+def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
+    """(every, evaluate, save_best) of --eval-freq: deterministic test-environment episodes on
+    the batched simulator, with the run's observation (memory) and normalization."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from .rollouts import rollout_policy
+
+    args = run.args
+    cfg = make_config(
+        args.stage,
+        args.mode,
+        "test",
+        detector=args.detector,
+        episode_steps=args.episode_steps,
+        **args.rig_config,
+    )
+
+    def evaluate(model) -> float:
+        venv = run.venv
+        norm = venv.normalize_obs if isinstance(venv, VecNormalize) else (lambda o: o)
+        res = rollout_policy(
+            lambda obs: model.predict(norm(obs), deterministic=True)[0],
+            cfg,
+            args.eval_episodes,
+            args.episode_steps,
+            seed=0,
+            observation_options=observation_options(args),
+        )
+        power = float(res["power"][:, -1].mean())
+        print(
+            f"[train] step {model.num_timesteps}: evaluation (test, {args.eval_episodes} "
+            f"episodes) final P_N/P_max {power:.4f}",
+            flush=True,
+        )
+        return power
+
+    def save_best(model, power: float) -> None:
+        wall = time.monotonic() - t0_ref[0]
+        extra = {"eval_final_power": power, "eval_episodes": args.eval_episodes}
+        _save(
+            run.out / "best",
+            args,
+            run.params,
+            model,
+            run.venv,
+            run.command_line,
+            wall,
+            False,
+            run.previous,
+            replay=False,
+            extra=extra,
+        )
+
+    return max(args.eval_freq // max(args.n_envs, 1), 1), evaluate, save_best
+
+
+def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
+    """Train; on success, Ctrl-C / SIGTERM or an error after the first step, save the model.
+    Returns (interrupted, error, wall seconds)."""
+    from ops_controller_ros.policy_io import save_metadata
+
+    from .callbacks import training_callbacks
+
+    args, out, model = run.args, run.out, run.model
+    total = run.start_steps + args.timesteps
+    every = max(int(run.params.get("checkpoint_freq", 10000)) // max(args.n_envs, 1), 1)
+    normalize = bool(run.params.get("normalize_obs", False))
+    max_s = None if not args.max_minutes else 60.0 * args.max_minutes
+    t0_ref = [time.monotonic()]
+    best = _best_model_hooks(run, t0_ref) if args.eval_freq > 0 else None
+    callbacks = training_callbacks(total, not args.no_progress, every, out, normalize, max_s, best)
+    callbacks.callbacks.extend(run.extra_callbacks)
+    # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
+    meta = build_metadata(
+        args, run.params, model, run.venv, run.command_line, 0.0, False, run.previous
+    )
+    save_metadata(out / "checkpoints", {**meta, "checkpoint": True})
+
+    _STOP_SIGNALS.clear()
+    previous_handler = signal.signal(signal.SIGTERM, _stop_to_interrupt)
+    signal.signal(signal.SIGINT, _stop_to_interrupt)
+    interrupted, error = False, None
+    t0 = t0_ref[0] = time.monotonic()
+    print(
+        f"[train] training started: {args.algo} stage={args.stage} mode={args.mode} "
+        f"detector={args.detector} backend={args.backend} n_envs={args.n_envs} "
+        f"obs_history={args.obs_history} observation={args.observation} reward={args.reward} "
+        f"hyperparams_set={args.hyperparams_set} setpoint_window={args.setpoint_window:g} "
+        f"continue_prob={args.continue_prob:g} "
+        + "".join(f"{k}={v} " for k, v in sorted(args.rig_config.items()))
+        + f"steps {run.start_steps} -> {total}, out={out}",
+        flush=True,
+    )
+    try:
+        model.learn(
+            total_timesteps=args.timesteps,
+            callback=callbacks,
+            # a fine-tuned model keeps its step count: past learning_starts, it acts from the
+            # first step instead of filling its new buffer with random actions
+            reset_num_timesteps=not (args.resume or args.init_from),
+            log_interval=1,
+        )
+    except KeyboardInterrupt:
+        interrupted = True
+    except Exception as exc:  # e.g. the simulator died: keep what was learned, then report
+        if _STOP_SIGNALS:  # the stop, surfacing through a C++ call (see _stop_to_interrupt)
+            interrupted = True
+        else:
+            error = exc
+    finally:
+        # A second Ctrl-C must not corrupt the model being written.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        callbacks.callbacks[0].close()
+    run.wall_limit_reached = any(getattr(c, "reached", False) for c in callbacks.callbacks)
+    wall = time.monotonic() - t0
+    try:
+        # A run that failed before its first step (e.g. no simulator) has nothing worth saving.
+        if error is None or model.num_timesteps > run.start_steps:
+            failed = interrupted or error is not None
+            _save(
+                out, args, run.params, model, run.venv, run.command_line, wall, failed, run.previous
+            )
+    finally:
+        with contextlib.suppress(Exception):  # closing must not hide the result
+            run.venv.close()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, previous_handler)
+    return interrupted, error, wall

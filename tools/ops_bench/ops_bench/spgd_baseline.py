@@ -1,0 +1,161 @@
+"""The SPGD-PID baseline in every mode: where the classic controller works and where it stalls.
+
+Runs ``ros2 run ops_gym_bridge evaluate --spgd`` with the paper's SPGD-PID (``spgd.PAPER``: no
+normalized gradient, no restarts; ``--variant default`` runs the node's defaults instead) -- the
+same evaluation as for learned policies: 5 seeds x 5 episodes of 200 steps, train and test
+environments -- for every mode at the given stage, then draws the figure (default
+runs/spgd/spgd_baseline.png; docs/results/spgd/index.md's is made with
+``--figure docs/figures/spgd_baseline.png``: P_N / P_max against the step, mean and standard
+deviation over seeds, on the test environment) and prints a markdown table.
+
+``--sweep`` instead measures, in-process, whether other SPGD settings change the picture in medium
+and hard mode, and whether SPGD can hold the optimum against the hard-mode drift when it starts
+next to it (``initial_sigma_cycles=0.025, initial_offset_sigmas=0``): mean P_N / P_max over
+the last 50 of 300 iterations.
+
+Usage (after `source setup.bash`): ops-bench spgd-baseline [--stage 5] [--out runs/spgd]
+                                   [--figure docs/figures/spgd_baseline.png] [--variant paper]
+                                   ops-bench spgd-baseline --sweep [--stage 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def variant_params(variant: str) -> dict:
+    """SPGD's parameters: ``paper`` (Table 1's baseline) or ``default`` (the node's)."""
+    from ops_controller_ros.spgd import PAPER
+
+    return dict(PAPER) if variant == "paper" else {}
+
+
+def evaluate(stage: int, mode: str, out: Path, params: dict) -> dict:
+    ros2 = shutil.which("ros2")
+    cmd = (
+        [ros2, "run", "ops_gym_bridge", "evaluate"]
+        if ros2
+        else [sys.executable, "-m", "ops_gym_bridge.experiments.evaluate"]
+    )
+    cmd += [
+        "--spgd",
+        "--stage",
+        str(stage),
+        "--mode",
+        mode,
+        "--out",
+        str(out),
+        "--quiet",
+        "--no-plot",
+        *(f"--controller-param={k}={str(v).lower()}" for k, v in params.items()),
+    ]
+    print(f"[spgd] {mode}: {' '.join(cmd[1:] if ros2 else cmd)}", flush=True)
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    return json.loads((out / "evaluation.json").read_text())
+
+
+SWEEP = (  # (gain, ki, perturbation_fs, momentum)
+    (0.05, 0.0, 0.03, 0.0),
+    (0.2, 0.0, 0.03, 0.0),
+    (1.0, 0.0, 0.03, 0.0),
+    (0.1, 0.1, 0.03, 0.0),
+    (0.1, 0.3, 0.03, 0.0),
+    (0.2, 0.2, 0.05, 0.0),
+    (0.1, 0.0, 0.03, 0.8),
+)
+
+
+def sweep(stage: int, base: dict, seeds: int = 4, iterations: int = 300) -> None:
+    from ops_gym_bridge.experiments.rollouts import rollout_controller
+    from ops_sim_ros.config import make_config
+
+    def run(params, mode, **overrides):
+        config = make_config(stage, mode, "test", **overrides)
+        finals = []
+        for seed in range(seeds):
+            # The evaluation's own loop; two steps per SPGD iteration, P_N after each iteration.
+            r = rollout_controller("spgd", params, config, config, 1, 2 * iterations, seed)
+            finals.append(r["power"][0, 2 * (iterations - 49) :: 2].mean())
+        return np.mean(finals)
+
+    print("| gain | ki | perturbation (fs) | momentum | medium | hard | hard, start at optimum |")
+    print("|---|---|---|---|---|---|---|")
+    for gain, ki, pert, mom in SWEEP:
+        p = dict(base, gain=gain, ki=ki, perturbation_fs=pert, momentum=mom)
+        print(
+            f"| {gain} | {ki} | {pert} | {mom} | {run(p, 'medium'):.3f} | {run(p, 'hard'):.3f} | "
+            f"{run(p, 'hard', initial_sigma_cycles=0.025, initial_offset_sigmas=0.0):.3f} |",
+            flush=True,
+        )
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--stage", type=int, default=5)
+    ap.add_argument("--out", default="runs/spgd", help="evaluation outputs")
+    ap.add_argument("--figure", default="runs/spgd/spgd_baseline.png")
+    ap.add_argument("--variant", choices=("paper", "default"), default="paper")
+    ap.add_argument("--sweep", action="store_true", help="SPGD settings sweep (see above)")
+    args = ap.parse_args(argv)
+    params = variant_params(args.variant)
+    if args.sweep:
+        sweep(args.stage, params)
+        return
+
+    from ops_sim_ros.config import MODES
+
+    out = Path(args.out)
+    results = {m: evaluate(args.stage, m, out / f"n{args.stage}_{m}", params) for m in MODES}
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.5, 3.6), dpi=110)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    colors = {"easy": "tab:green", "medium": "tab:orange", "hard": "tab:red", "extreme": "k"}
+    rows = []
+    for mode, res in results.items():
+        test = res["splits"]["test"]
+        mean = np.asarray(test["curve_mean"])
+        std = np.asarray(test.get("curve_std", np.zeros_like(mean)))
+        steps = np.arange(mean.size)
+        ax.plot(
+            steps, mean, color=colors[mode], label=f"{mode}: final {test['final_power_mean']:.3f}"
+        )
+        ax.fill_between(steps, mean - std, mean + std, color=colors[mode], alpha=0.2, linewidth=0)
+        for split in ("train", "test"):
+            s = res["splits"][split]
+            rows.append(
+                f"| {mode} | {split} | {s['initial_power_mean']:.3f} | "
+                f"{s['final_power_mean']:.4f} ± {s['final_power_std']:.4f} | "
+                f"{s['episode_return_mean']:.1f} ± {s['episode_return_std']:.1f} |"
+            )
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("control step (2 steps per SPGD iteration)")
+    ax.set_ylabel("P_N / P_max (test environment)")
+    label = "the paper's SPGD-PID" if args.variant == "paper" else "SPGD-PID, node defaults"
+    ax.set_title(f"{label}, {args.stage} stages (200-step episodes)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="center right", fontsize=9)
+    fig.tight_layout()
+    Path(args.figure).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.figure)
+    print(f"[spgd] wrote {args.figure}")
+    print(
+        "| mode | environment | initial P_N/P_max | final P_N/P_max (mean ± std over seeds) | "
+        "episode return |"
+    )
+    print("|---|---|---|---|---|")
+    print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,165 @@
+"""ops_bench (tools/ops_bench): the ``ops-bench`` command's table, every subcommand's options,
+and the helpers the integration tests import from it."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import pkgutil
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import ops_bench
+from ops_bench import cli
+
+PACKAGE = Path(ops_bench.__file__).resolve().parent
+NAMES = [n for n in cli.TOOLS if n != "figures"]
+FIGURES = list(cli.FIGURES)
+
+
+def test_repo_is_the_checkout_the_package_lives_in():
+    assert (ops_bench.REPO / "setup.bash").is_file()
+    assert (ops_bench.REPO / "docs" / "benchmarks.md").is_file()
+
+
+def test_every_module_has_a_subcommand_or_is_a_helper():
+    modules = {m.name for m in pkgutil.iter_modules([str(PACKAGE)])}
+    tools = {t.module for t in [*cli.TOOLS.values(), *cli.FIGURES.values()] if t.module}
+    helpers = {"cli", "__main__", "docs", "hosts", "observer", "processes", "ray_cluster"}
+    assert tools <= modules
+    assert modules - tools == helpers
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_subcommand_help(name, capsys):
+    with pytest.raises(SystemExit) as done:
+        cli.main([name, "--help"])
+    assert done.value.code == 0
+    assert f"usage: ops-bench {name}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("kind", FIGURES)
+def test_figures_help(kind, capsys):
+    with pytest.raises(SystemExit) as done:
+        cli.main(["figures", kind, "--help"])
+    assert done.value.code == 0
+    assert f"usage: ops-bench figures {kind}" in capsys.readouterr().out
+
+
+def test_help_lists_every_subcommand_with_a_line():
+    exe = shutil.which("ops-bench")
+    assert exe, "no ops-bench on PATH: scripts/setup.sh installs tools/ops_bench"
+    done = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    listed = {line.split()[0] for line in done.stdout.split("subcommands:")[1].splitlines() if line}
+    assert set(NAMES) | set(FIGURES) | {"all"} <= listed
+    assert all(tool.summary for tool in [*cli.TOOLS.values(), *cli.FIGURES.values()])
+
+
+def test_python_m_ops_bench_is_the_same_command():
+    done = subprocess.run(
+        [sys.executable, "-m", "ops_bench", "--help"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0 and "ops-bench" in done.stdout, done.stderr
+
+
+def test_bad_names_are_refused(capsys):
+    with pytest.raises(SystemExit) as done:
+        cli.main(["no-such-tool"])
+    assert done.value.code == 2
+    assert cli.main(["figures", "no-such-kind"]) == 2
+    assert cli.main(["all", "no-such-tool"]) == 2
+    assert cli.main([]) == 2
+
+
+def test_all_runs_the_benchmarks_of_docs_benchmarks_md_in_order():
+    assert list(cli.ALL) == ["physics", "closed-loop", "bridge"]
+    assert set(cli.ALL) <= set(cli.TOOLS)
+
+
+def test_a_tool_sees_its_own_command_line(monkeypatch):
+    seen = {}
+
+    def fake_main(argv):
+        seen["argv"], seen["sys.argv"] = argv, list(sys.argv)
+        return 3
+
+    monkeypatch.setattr(importlib.import_module("ops_bench.latency_check"), "main", fake_main)
+    assert cli.main(["latency-check", "--seeds", "1"]) == 3
+    assert seen == {
+        "argv": ["--seeds", "1"],
+        "sys.argv": ["ops-bench latency-check", "--seeds", "1"],
+    }
+
+
+def test_helpers_of_the_tests_import_from_the_package():
+    from ops_bench.hosts import (  # noqa: F401
+        NetnsUnavailable,
+        RelayedHosts,
+        TwoHosts,
+        make_two_hosts,
+        netns_unavailable_reason,
+    )
+    from ops_bench.observer import TopicObserver  # noqa: F401
+    from ops_bench.processes import (  # noqa: F401
+        PYTHON,
+        REPO,
+        Process,
+        ProcessGroup,
+        assert_no_traceback,
+        executable,
+        ros2_command,
+        run_ros2,
+        sim_command,
+        start_sim,
+    )
+    from ops_bench.ray_cluster import RayCluster  # noqa: F401
+    from ops_bench.reference_actions import model_env  # noqa: F401
+    from ops_bench.relay import main  # noqa: F401
+
+
+def test_process_group_starts_waits_and_stops(tmp_path):
+    from ops_bench.processes import ProcessGroup
+
+    group = ProcessGroup(tmp_path)
+    quick = group.start([sys.executable, "-c", "print('ready', flush=True)"], name="quick")
+    slow = group.start([sys.executable, "-c", "import time; time.sleep(60)"], name="slow")
+    quick.wait_for("ready", timeout=30)
+    assert quick.wait_exit(30) == 0
+    group.stop_all()
+    assert slow.popen.returncode is not None
+    assert (tmp_path / "00_quick.log").read_text().strip() == "ready"
+
+
+def test_write_section_replaces_its_own_section_only(tmp_path):
+    from ops_bench.docs import write_section
+
+    doc = tmp_path / "bench.md"
+    doc.write_text("# Benchmarks\n\n## A\n\nold a\n\n## B\n\nb stays\n")
+    write_section("## A", "## A\n\nnew a", doc)
+    write_section("## C", "## C\n\nc", doc)
+    assert doc.read_text() == "# Benchmarks\n\n## A\n\nnew a\n\n## B\n\nb stays\n\n## C\n\nc\n"
+
+
+def test_write_section_keeps_a_hand_written_sub_section(tmp_path):
+    from ops_bench.docs import write_section
+
+    doc = tmp_path / "bench.md"
+    doc.write_text("## A\n\nold a\n\n### By hand\n\nkept\n\n## B\n\nb\n")
+    write_section("## A", "## A\n\nnew a", doc)
+    assert doc.read_text() == "## A\n\nnew a\n\n### By hand\n\nkept\n\n## B\n\nb\n"
+
+
+def test_sizes_and_no_path_hacks():
+    """No function over 80 lines, no module over 600; nothing put on sys.path by hand."""
+    for path in PACKAGE.glob("*.py"):
+        text = path.read_text()
+        assert len(text.splitlines()) <= 600, path.name
+        assert "sys.path" not in text, path.name
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                assert node.end_lineno - node.lineno < 80, f"{path.name}: {node.name}"
