@@ -8,7 +8,9 @@ the history starting at the node's first reading) from the simulator's trace, po
 set-points, and publishes new set-points: the reading's set-points + action * max step (the only
 action type ``ops_controller_ros.policy_io`` loads is "increment"). A switching model (one policy
 acquires, another holds: ``ops_controller_ros.policy_switch``) runs both on every reading and
-logs which one acts.
+logs which one acts. A model whose metadata has a ``reacquire`` entry runs inside the
+re-acquiring watchdog (``ops_controller_ros.reacquire``: a stack lost for ``patience`` readings
+is kicked to a fresh point), as ``evaluate`` runs it; the progress line counts its kicks.
 
 The loop is every controller node's (:class:`~ops_controller_ros.loop_node.ControllerLoopNode`):
 readings paired with their command and their own step's trace by sequence number, re-sends, the
@@ -30,6 +32,7 @@ from ops_sim_ros.ros_interface import NodeFatalError, ParameterError, run_node
 from .loop_node import ControllerLoopNode
 from .policy_io import PolicyLoadError, check_observation, check_stage, load_policy
 from .policy_switch import SwitchingRunner, make_runner
+from .reacquire import ReacquireWatchdog
 
 PARAMS = [
     ParamSpec("model", "", "trained model: the training output DIR or DIR/model.zip"),
@@ -91,10 +94,15 @@ class PolicyNode(ControllerLoopNode):
         self._check_rig(policy)
         if runner.spec.needs_applied_delays:
             self.use_applied_delays()
-        if isinstance(runner, SwitchingRunner):
+        inner = runner.runner if isinstance(runner, ReacquireWatchdog) else runner
+        if isinstance(inner, SwitchingRunner):
             self.get_logger().info(
-                f"switching model: {runner.acquire.policy.path} acquires, the model in "
-                f"{policy.path} holds ({runner.params})"
+                f"switching model: {inner.acquire.policy.path} acquires, the model in "
+                f"{policy.path} holds ({inner.params})"
+            )
+        if isinstance(runner, ReacquireWatchdog):
+            self.get_logger().info(
+                f"re-acquiring watchdog on (the model's 'reacquire' entry): {runner.params}"
             )
         self.get_logger().info(
             f"loaded {policy.algo.upper()} model for stage {policy.stage} "
@@ -131,12 +139,16 @@ class PolicyNode(ControllerLoopNode):
 
     def progress_note(self) -> str:
         r = self._runner
-        if not isinstance(r, SwitchingRunner):
-            return ""
-        acting = "holding policy acts" if r.holding else "acquiring policy acts"
-        if r.holder_acts and not r.holding:
-            acting = "holding policy searches in turn"
-        return f" ({acting}; {r.switches} hand-overs)"
+        notes = []
+        if isinstance(r, ReacquireWatchdog):
+            notes.append(f"{r.kicks} re-acquiring kicks" + (", kicking" if r.kicking else ""))
+            r = r.runner
+        if isinstance(r, SwitchingRunner):
+            acting = "holding policy acts" if r.holding else "acquiring policy acts"
+            if r.holder_acts and not r.holding:
+                acting = "holding policy searches in turn"
+            notes.insert(0, f"{acting}; {r.switches} hand-overs")
+        return f" ({'; '.join(notes)})" if notes else ""
 
 
 def main(args=None):

@@ -45,6 +45,7 @@ from .policy_io import (
     read_metadata,
     save_metadata,
 )
+from .reacquire import REACQUIRE_KEY, ReacquireWatchdog, watchdog_params_of
 
 SWITCH_KEY = "switch"
 ACQUIRE_DIR = "acquire"
@@ -161,6 +162,12 @@ class SwitchingRunner:
         self.acquire.took(action)
         return action
 
+    def took(self, action) -> None:
+        """The action actually applied, if not the one :meth:`act` returned (a re-acquiring
+        watchdog's kick, :mod:`ops_controller_ros.reacquire`): both policies' memories hold it."""
+        self.hold.took(action)
+        self.acquire.took(action)
+
 
 def _acquire_path(loaded: LoadedPolicy) -> Path:
     entry = loaded.metadata[SWITCH_KEY]
@@ -199,7 +206,18 @@ def check_pair(hold: LoadedPolicy, acquire: LoadedPolicy) -> None:
 
 def make_runner(loaded: LoadedPolicy, num_envs: int | None = None):
     """The runner of a loaded model directory: a :class:`SwitchingRunner` when its metadata has
-    a ``switch`` entry (the acquiring policy loaded from inside it), else a PolicyRunner."""
+    a ``switch`` entry (the acquiring policy loaded from inside it), else a PolicyRunner; either
+    wrapped in a :class:`~ops_controller_ros.reacquire.ReacquireWatchdog` when the metadata has
+    a ``reacquire`` entry."""
+    runner = _make_policy_runner(loaded, num_envs)
+    try:
+        watchdog = watchdog_params_of(loaded.metadata)
+    except (TypeError, ValueError) as exc:
+        raise PolicyLoadError(f"metadata malformed: {loaded.path / METADATA_FILE}: {exc}") from None
+    return runner if watchdog is None else ReacquireWatchdog(runner, watchdog, num_envs)
+
+
+def _make_policy_runner(loaded: LoadedPolicy, num_envs: int | None):
     if SWITCH_KEY not in loaded.metadata:
         return PolicyRunner(loaded, num_envs)
     path = _acquire_path(loaded)
@@ -221,8 +239,11 @@ def make_runner(loaded: LoadedPolicy, num_envs: int | None = None):
     return SwitchingRunner(loaded, acquire, params, num_envs)
 
 
-def is_switching(loaded: LoadedPolicy) -> bool:
-    return SWITCH_KEY in loaded.metadata
+def needs_runner(loaded: LoadedPolicy) -> bool:
+    """Whether the model runs more than its policy's bare ``predict``: a switching model, or a
+    re-acquiring watchdog (``reacquire`` entry). ``evaluate`` then runs :func:`make_runner`'s
+    runner on every reading (``rollouts.rollout_runner``), as the policy node does."""
+    return SWITCH_KEY in loaded.metadata or REACQUIRE_KEY in loaded.metadata
 
 
 def write_switch_model(

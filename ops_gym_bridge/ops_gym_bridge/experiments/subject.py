@@ -76,9 +76,9 @@ class Subject:
             return rollout_controller(
                 self.controller, self.controller_params, nominal, sim, episodes, steps, seed
             )
-        from ops_controller_ros.policy_switch import is_switching, make_runner
+        from ops_controller_ros.policy_switch import make_runner, needs_runner
 
-        if is_switching(self.policy):  # two policies, each with its own observation
+        if needs_runner(self.policy):  # a switching model or a re-acquiring watchdog
             return rollout_runner(make_runner(self.policy, episodes), sim, episodes, steps, seed)
         options = self.observation_options()
         return rollout_policy(
