@@ -170,6 +170,33 @@ def test_bridge_trains_in_lockstep_across_the_link(hosts, procs, tmp_path):
     assert "rollout/ep_rew_mean" in (out / "logs" / "progress.csv").read_text().splitlines()[0]
 
 
+def _spgd_and_echo_on_b(hosts, procs, env):
+    """SPGD on host B controlling /rig1, and P_N / P_max as any node on host B sees it."""
+    spgd = hosts.b.ros2(
+        procs,
+        *("run", "ops_controller_ros", "spgd", "--ros-args", "-p", "seed:=5"),
+        *("-p", "timeout_s:=0.5", "-p", "log_period_s:=0.5", "-r", "__ns:=/rig1"),
+        name="spgd_b",
+        env=env,
+    )
+    echo = hosts.b.ros2(
+        procs,
+        *("topic", "echo", "/rig1/ops/power", "std_msgs/msg/Float32", "--field", "data"),
+        name="echo_b",
+        env=env,
+    )
+    return spgd, echo
+
+
+def _bridge_client_on_b(hosts, procs, env):
+    """The bridge client on host B stepping the lockstep /rig2 (test/bridge_link_client.py)."""
+    script = REPO / "test" / "bridge_link_client.py"
+    cmd = [PYTHON, script, "--stage", STAGE, "--namespace", "/rig2"]
+    return hosts.b.start(
+        procs, [*cmd, "--timeout", BRIDGE_TIMEOUT_S], name="bridge_client_b", env=env
+    )
+
+
 def test_spgd_closes_the_loop_across_the_link_and_both_clients_survive_an_outage(hosts, procs):
     """Rig 1 (free-running) is controlled by SPGD from host B; rig 2 (lockstep) is stepped by a
     bridge client on host B. The link goes down: the bridge raises its timeout error within its
@@ -177,35 +204,7 @@ def test_spgd_closes_the_loop_across_the_link_and_both_clients_survive_an_outage
     env = hosts.env()
     sim_on(hosts.a, procs, env, "/rig1", lockstep=False, name="sim_rig1_a")
     sim_on(hosts.a, procs, env, "/rig2", lockstep=True, name="sim_rig2_a")
-    spgd = hosts.b.ros2(
-        procs,
-        "run",
-        "ops_controller_ros",
-        "spgd",
-        "--ros-args",
-        "-p",
-        "seed:=5",
-        "-p",
-        "timeout_s:=0.5",
-        "-p",
-        "log_period_s:=0.5",
-        "-r",
-        "__ns:=/rig1",
-        name="spgd_b",
-        env=env,
-    )
-    # P_N / P_max as any node on host B sees it over DDS.
-    echo = hosts.b.ros2(
-        procs,
-        "topic",
-        "echo",
-        "/rig1/ops/power",
-        "std_msgs/msg/Float32",
-        "--field",
-        "data",
-        name="echo_b",
-        env=env,
-    )
+    spgd, echo = _spgd_and_echo_on_b(hosts, procs, env)
     spgd.wait_for("closing the loop", timeout=60)
 
     def loop_closed(since: int):
@@ -217,21 +216,7 @@ def test_spgd_closes_the_loop_across_the_link_and_both_clients_survive_an_outage
 
     wait_until(loop_closed(0), 90, f"P_N/P_max >= {THRESHOLD} on host B", spgd, echo)
 
-    client = hosts.b.start(
-        procs,
-        [
-            PYTHON,
-            REPO / "test" / "bridge_link_client.py",
-            "--stage",
-            STAGE,
-            "--namespace",
-            "/rig2",
-            "--timeout",
-            BRIDGE_TIMEOUT_S,
-        ],
-        name="bridge_client_b",
-        env=env,
-    )
+    client = _bridge_client_on_b(hosts, procs, env)
     client.wait_for(r"\[client\] step 40\b", timeout=60)
 
     # ---- the link goes down

@@ -51,6 +51,9 @@ TOOLS: dict[str, Tool] = {
     "ship-model": Tool("ship_model", "ship a trained run as a model folder with its curve"),
     "reference-actions": Tool("reference_actions", "store a shipped model's reference actions"),
     "switch-model": Tool("switch_model", "a switching model: one policy acquires, one holds"),
+    "results": Tool(
+        "results_pages", "the results pages (docs/results.md, its topics) from stored runs"
+    ),
     "relay": Tool("relay", "the lossy link's frame relay (run inside a network namespace)"),
 }
 FIGURES: dict[str, Tool] = {

@@ -96,7 +96,9 @@ def table_lines(dds: Path, inprocess: Path, select=lambda stem: True, link: str 
         lines.append(
             f"| {name} | {mode} | {seconds} s, {readings} | {100 * o['locked_fraction']:.2f} % | "
             f"{o['losses']} | {o['longest_loss']} | {o['worst_after_lock']:.4f} | "
-            f"{data['args'].get('nice', 0)} | {load} | " + " | ".join(ref_cells) + f" | {stored_cell} |"
+            f"{data['args'].get('nice', 0)} | {load} | "
+            + " | ".join(ref_cells)
+            + f" | {stored_cell} |"
         )
     return lines
 

@@ -1,0 +1,94 @@
+"""The results pages are what ``ops-bench results`` writes from the stored runs (issue 33)."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from ops_bench import results_pages
+
+
+def test_committed_results_pages_are_what_the_command_writes():
+    pages = results_pages.generate()
+    stale = [
+        results_pages.rel(path)
+        for path, text in pages.items()
+        if not path.exists() or path.read_text() != text
+    ]
+    assert not stale, (
+        f"{', '.join(stale)}: edited by hand or out of date; edit the notes.md beside the page "
+        "(or re-run the measurement) and run `ops-bench results`"
+    )
+    assert results_pages.generate() == pages  # deterministic
+
+
+def test_no_commit_hash_beside_current_figures():
+    assert results_pages.commits_beside_current(results_pages.generate()) == []
+    assert results_pages.COMMIT.search("run of 5c28d78 kept")
+    assert not results_pages.COMMIT.search("--timesteps 100000000, 3,848,848 steps")
+
+
+def _evaluation(locked: list[float], never: int = 0) -> dict:
+    per_seed = [{"locked_fraction": f} for f in locked]
+    overall = {
+        "locked_fraction": sum(locked) / len(locked),
+        "runs_never_locked": never,
+        "losses": 3,
+        "longest_loss": 7,
+        "worst_after_lock": 0.51234,
+        "first_lock_step_median": 8.0,
+    }
+    return {
+        "mode": "extreme",
+        "continuous_steps": 2000,
+        "seeds": [1000 + i for i in range(len(locked))],
+        "splits": {"test": {"overall": overall, "per_seed": per_seed}},
+    }
+
+
+def test_continuous_table_renders_a_fixture(tmp_path, monkeypatch):
+    root = tmp_path / "continuous"
+    for name, data in {
+        "tracker_extreme_30k": _evaluation([0.9768, 0.9780]),
+        "spgd_extreme_5c28d78": _evaluation([0.0085, 0.0], never=1),
+    }.items():
+        (root / name).mkdir(parents=True)
+        (root / name / "evaluation.json").write_text(json.dumps(data))
+    monkeypatch.setattr(results_pages, "RESULTS", tmp_path)
+    text = results_pages.expand(
+        "before\n<!-- generated: continuous tracker_extreme_30k spgd_extreme_5c28d78 -->\nafter\n",
+        tmp_path,
+    )
+    lines = text.splitlines()
+    assert lines[0] == "before" and lines[-1] == "after"
+    assert "`tracker_extreme_30k`, `spgd_extreme_5c28d78`" in lines[1]
+    assert lines[3] == results_pages.CONTINUOUS_HEAD[0]
+    assert lines[5] == (
+        "| tracker | extreme | 2000 × 2 | 97.74 % (seeds: 97.68 %, 97.80 %) | 3 | 7 | 0.5123 | 8 |"
+    )
+    assert lines[6] == (
+        "| SPGD-PID (defaults), commit 5c28d78 | extreme | 2000 × 2 | 0.43 % (one seed never "
+        "locks) | 3 | 7 | 0.5123 | 8 |"
+    )
+
+
+def test_unknown_directive_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="unknown directive"):
+        results_pages.expand("<!-- generated: nothing a b -->\n", tmp_path)
+
+
+def test_slug_is_githubs_anchor():
+    assert results_pages.slug("SPGD-PID: the user's first run") == "spgd-pid-the-users-first-run"
+    assert results_pages.slug("Table 1 at N = 5") == "table-1-at-n--5"
+
+
+def test_every_relative_link_of_the_pages_resolves():
+    broken = []
+    for path, text in results_pages.generate().items():
+        for match in re.finditer(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text):
+            target = match.group(1)
+            if not target.startswith("http") and not (path.parent / target).exists():
+                broken.append(f"{results_pages.rel(path)}: {target}")
+    assert broken == []
