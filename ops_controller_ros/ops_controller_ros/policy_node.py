@@ -112,14 +112,22 @@ class PolicyNode(ControllerLoopNode):
 
     def _check_rig(self, policy) -> None:
         """Say where the rig this node is told of differs from the one the model was trained
-        on (a learned policy is not built from a model: it acts on its observations alone)."""
+        on (a learned policy is not built from a model: it acts on its observations alone); a
+        figure inside the ranges the model's training drew its rigs from (``rig_randomize``)
+        counts as trained on."""
         trained = dict(policy.metadata.get("config") or {})
+        ranges = dict(policy.metadata.get("rig_randomize") or {})
         told = self.nominal_model(stage=policy.stage).to_dict()
         keys = ("realism", *RIG_PARAM_KEYS)
+
+        def drawn(k) -> bool:
+            low, high = ranges.get(k) or (None, None)
+            return low is not None and low <= told[k] <= high
+
         diff = [
             f"{k}={told[k]} (trained: {trained[k]})"
             for k in keys
-            if k in trained and trained[k] != told[k]
+            if k in trained and trained[k] != told[k] and not drawn(k)
         ]
         if diff:
             self.get_logger().warning(

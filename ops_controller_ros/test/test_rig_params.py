@@ -84,3 +84,32 @@ def test_a_declared_range_is_checked_by_tracker_params():
         TrackerParams(hold_pattern="some")
     with pytest.raises(ValueError, match=r"recover_readings must be in \[2, window\]"):
         TrackerParams(window=3, recover_readings=4)
+
+
+def test_the_policy_node_counts_a_randomized_figure_as_trained_on():
+    """A model trained on rigs drawn per episode (train --rig-randomize) is not warned about a
+    told figure inside the drawn range; outside it, or for a figure not drawn, it is."""
+    from types import SimpleNamespace
+
+    from ops_controller_ros.policy_node import PolicyNode
+
+    def warnings_for(told: dict, ranges: dict | None) -> list[str]:
+        said: list[str] = []
+        node = SimpleNamespace(
+            nominal_model=lambda stage: make_config(stage=stage, **told),
+            get_logger=lambda: SimpleNamespace(warning=said.append),
+        )
+        trained = make_config(stage=3, realism="lab").to_dict()
+        meta = {"config": trained, "rig_randomize": ranges}
+        PolicyNode._check_rig(node, SimpleNamespace(metadata=meta, stage=3))
+        return said
+
+    ranges = {"latency_steps": [0, 2], "trace_adc_bits": [6, 12]}
+    assert warnings_for({"realism": "lab"}, ranges) == []
+    assert warnings_for({"realism": "lab", "latency_steps": 2}, ranges) == []
+    assert (
+        "latency_steps=2 (trained: 1)"
+        in warnings_for({"realism": "lab", "latency_steps": 2}, None)[0]
+    )
+    said = warnings_for({"realism": "lab", "latency_steps": 3, "dac_bits": 12}, ranges)
+    assert "latency_steps=3 (trained: 1)" in said[0] and "dac_bits=12 (trained: 16)" in said[0]

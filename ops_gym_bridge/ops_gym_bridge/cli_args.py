@@ -160,6 +160,35 @@ def add_rig_arguments(parser: argparse.ArgumentParser, told: str) -> None:
     )
 
 
+def add_rig_randomize_argument(parser: argparse.ArgumentParser) -> None:
+    """``--rig-randomize KEY=LOW:HIGH ...``: figures of the rig drawn anew for every episode
+    of every environment (ops_sim_ros.rig_randomization)."""
+    from ops_sim_ros.rig_randomization import RANGE_PRESETS
+
+    parser.add_argument(
+        "--rig-randomize",
+        nargs="+",
+        action="extend",
+        default=None,
+        metavar="KEY=LOW:HIGH",
+        help="draw these figures of the rig anew at every episode of every environment, "
+        "uniformly in [LOW, HIGH] (integers for latency_steps, dac_bits, trace_adc_bits, "
+        "trace_averages), on top of --realism / --rig; KEY=VALUE fixes one; a named set of "
+        f"ranges ({', '.join(RANGE_PRESETS)}: docs/physics.md, 'A rig drawn per episode') "
+        "may come first, e.g. --rig-randomize lab latency_steps=0:3. Keys: "
+        + ", ".join(RIG_KEYS)
+        + " (default: none; --resume: the model's)",
+    )
+
+
+def resolve_rig_randomize(items: Iterable[str] | None):
+    """The :class:`~ops_sim_ros.rig_randomization.RigRanges` of ``--rig-randomize`` (ValueError
+    naming the figure and its allowed range)."""
+    from ops_sim_ros.rig_randomization import RigRanges
+
+    return RigRanges.parse(items)
+
+
 def resolve_rig(realism: str | None, items: Iterable[str] | None) -> dict[str, Any]:
     """The OpsConfig fields of ``--realism`` and ``--rig``, checked as make_config checks them
     (ValueError naming the figure and what it may be)."""

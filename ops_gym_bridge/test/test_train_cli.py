@@ -368,3 +368,45 @@ def test_the_rig_reaches_the_training_environments_and_a_resumed_run_keeps_it(tm
     bad = run("train", "--out", tmp_path / "bad", "--timesteps", 10, "--rig", "dac_bits=40")
     assert bad.returncode == 2 and "dac_bits must be 0 (an ideal DAC) or from 1 to 32" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_a_rig_drawn_per_episode_is_saved_resumed_and_the_model_evaluates_on_lab(tmp_path):
+    """--rig-randomize (issue 32, "Learning on the rig"): each training env draws its rig at
+    every reset; the ranges are printed and saved in the metadata (rig_randomize, beside the
+    fixed rig); --resume keeps them; the model evaluates on the fixed lab rig; a range outside
+    the figure's limits is refused (exit 2) naming it and what it may be."""
+    out = tmp_path / "lab_random"
+    done = run(
+        "train", "--algo", "sac", "--stage", 2, "--mode", "hard", "--timesteps", 300,
+        "--n-envs", 2, "--obs-history", 2, "--realism", "lab",
+        "--rig-randomize", "lab", "latency_steps=0:2", "--out", out, "--no-progress",
+        "--hyperparams", *FAST,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "rig_randomize=[actuator_hysteresis=0:0.15" in done.stdout
+    assert "latency_steps=0:2" in done.stdout
+    assert "(use --obs-history 3 or more)" in done.stdout  # the memory is short of latency 2
+    meta = read_metadata(out)
+    assert meta["rig_randomize"]["latency_steps"] == [0, 2]
+    assert meta["rig_randomize"]["trace_adc_bits"] == [6, 12]
+    assert meta["rig"] == {"realism": "lab"} and meta["config"]["latency_steps"] == 1
+    again = run("train", "--resume", "--out", out, "--timesteps", 100, "--no-progress")
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "latency_steps=0:2" in again.stdout
+    assert read_metadata(out)["rig_randomize"] == meta["rig_randomize"]
+    assert load_policy(out).model.num_timesteps == 400
+    ev = run(
+        "evaluate", out, "--realism", "lab", "--mode", "hard", "--splits", "test",
+        "--seeds", 0, "--episodes", 1, "--steps", 30, "--out", tmp_path / "eval",
+    )  # fmt: skip
+    assert ev.returncode == 0, ev.stdout + ev.stderr
+    res = json.loads((tmp_path / "eval" / "evaluation.json").read_text())
+    assert res["rig"] == {"realism": "lab"}
+    assert len(res["splits"]["test"]["final_power_per_episode"]) == 1
+    bad = run(
+        "train", "--out", tmp_path / "bad", "--timesteps", 10,
+        "--rig-randomize", "actuator_hysteresis=0:1.2",
+    )  # fmt: skip
+    assert bad.returncode == 2, bad.stdout + bad.stderr
+    assert "actuator_hysteresis=0:1.2: actuator_hysteresis must be from 0.0 to 0.99" in bad.stderr
+    assert "Traceback" not in bad.stderr

@@ -269,6 +269,8 @@ _INT_FIELDS = {
     "trace_adc_bits",
     "trace_averages",
 }
+#: The integer fields (public: :mod:`ops_sim_ros.rig_randomization` draws integers for them).
+INT_FIELDS = frozenset(_INT_FIELDS)
 _BOOL_FIELDS = {"drift_per_stage"}
 _STR_FIELDS = {"mode": MODES, "split": SPLITS, "detector": DETECTORS, "realism": REALISMS}
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from .env_setup import ACTION_TYPES, config_arguments, env_setup
 from .observation import ObservationBuilder
+from .rig_randomization import RigRanges
 from .simulation import BatchedSimulation, StepResult
 
 __all__ = ["ACTION_TYPES", "OpsEnv"]
@@ -32,6 +33,12 @@ class OpsEnv(gym.Env):
 
     ``info``: ``power`` (P_N/P_max), ``delays_fs`` (applied delays: set-point + noise),
     ``setpoints_fs``, ``main_pulse_energy``, ``rejected_energy``, ``clipped``.
+
+    ``rig_randomize`` (``{key: (low, high)}`` of the rig's figures, or a
+    :class:`~ops_sim_ros.rig_randomization.RigRanges`): at every reset the env draws its rig
+    from its own random stream (the same seed, the same rigs), on top of its configuration
+    (``realism`` and the other overrides); ``env.rig`` is the rig of the current episode, and
+    ``env.config`` stays the configuration it was built with.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
@@ -45,6 +52,7 @@ class OpsEnv(gym.Env):
         render_mode: str | None = None,
         max_episode_steps: int = 200,
         observation_options: dict[str, Any] | None = None,
+        rig_randomize: Any = None,
         **overrides: Any,
     ) -> None:
         super().__init__()
@@ -60,6 +68,10 @@ class OpsEnv(gym.Env):
         self.action_space = setup.action_space
         self.render_mode = render_mode
         self.sim = BatchedSimulation(self.config, num_envs=1, seed=None)
+        self.rig_ranges = RigRanges.from_value(rig_randomize)
+        self.rig: dict[str, Any] = {}
+        for bound in self.rig_ranges.bounds() if self.rig_ranges else ():
+            self.config.replace(**bound)  # each end of every range, checked with the rest
         self._observations = ObservationBuilder(self.obs_spec)
         self._abs_scale = self.config.absolute_action_range_fs
         self._last: StepResult | None = None
@@ -93,6 +105,9 @@ class OpsEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
+        if self.rig_ranges:  # a rig of its own for this episode, drawn from the env's stream
+            self.rig = self.rig_ranges.draw(self.np_random)
+            self.sim.use_rig(self.config.replace(**self.rig))
         if seed is not None:
             # Same seed -> same episode: restart the simulation's random stream and its drift.
             r = self.sim.reset(seed=self.np_random)

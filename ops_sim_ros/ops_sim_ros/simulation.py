@@ -90,6 +90,22 @@ class BatchedSimulation:
         sim.last = self.last
         return sim
 
+    def use_rig(self, config: OpsConfig) -> None:
+        """Run the rig's and the source's figures of ``config`` from now on (``OpsEnv``'s
+        ``rig_randomize`` draws one per episode); the optics, noise, drift, random stream,
+        set-points and step counts stay. Nothing is in flight on the new actuator: call it
+        before :meth:`reset`."""
+        if config.stage != self.stage:
+            raise ValueError(f"stage must stay {self.stage} (got {config.stage})")
+        if config.burst_envelope != self.config.burst_envelope:
+            self.stacker = stacker_from_config(config)
+        self.config = config
+        self.actuator = None if config.ideal_actuator else Actuator(config, self.num_envs)
+        self.digitizer = None if config.ideal_digitizer else Digitizer(config)
+        self._amplitude_noise = config.pulse_amplitude_noise
+        if self.actuator is not None:
+            self.actuator.reset(self.setpoints_fs)
+
     # ------------------------------------------------------------------ episode control
     def reset(self, mask=None, seed=None) -> StepResult:
         """Start new episodes (all, or where ``mask`` is True) and measure the initial state.

@@ -52,6 +52,12 @@ class _BatchCore:
         continue_prob: float = 0.0,
         **overrides: Any,
     ) -> None:
+        if overrides.pop("rig_randomize", None):
+            raise ValueError(
+                "rig_randomize: the batched envs share one rig; a rig drawn per env and episode "
+                "needs a vector of OpsEnv (OpsEnv(rig_randomize=...), as train --rig-randomize "
+                "builds it)"
+            )
         q = continue_prob
         if isinstance(q, bool) or not isinstance(q, int | float) or not 0.0 <= q < 1.0:
             raise ValueError(f"continue_prob must be in [0, 1) (got {q!r})")

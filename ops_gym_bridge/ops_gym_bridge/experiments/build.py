@@ -75,6 +75,7 @@ def make_env(run: TrainRun) -> None:
             overrides={"detector": args.detector, **args.rig_config},
             observation_options=observation_options(args),
             continue_prob=args.continue_prob,
+            rig_randomize=args.rig_ranges or None,
         )
     except ValueError as exc:
         raise TrainError(str(exc)) from None

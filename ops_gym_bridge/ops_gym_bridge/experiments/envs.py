@@ -25,8 +25,11 @@ def make_single_env(
     episode_steps: int = EPISODE_STEPS,
     overrides: dict[str, Any] | None = None,
     observation_options: dict[str, Any] | None = None,
+    rig_randomize=None,
 ):
-    """One gymnasium env (not wrapped). ``observation_options``: e.g. ``{"history": 4}``."""
+    """One gymnasium env (not wrapped). ``observation_options``: e.g. ``{"history": 4}``;
+    ``rig_randomize``: ranges of the rig's figures drawn per episode (in-process only,
+    ``ops_sim_ros.rig_randomization``)."""
     common = {
         "stage": stage,
         "mode": mode,
@@ -38,7 +41,12 @@ def make_single_env(
     if backend == "inprocess":
         from ops_sim_ros import OpsEnv
 
-        return OpsEnv(**common)
+        return OpsEnv(rig_randomize=rig_randomize, **common)
+    if rig_randomize:
+        raise ValueError(
+            "--rig-randomize draws the rig in the simulator of each episode: it needs "
+            "--backend inprocess"
+        )
     if backend == "ros":
         from ..bridge.bridge_env import RosOpsEnv
 
@@ -100,6 +108,7 @@ def make_vec_env(
     overrides: dict[str, Any] | None = None,
     observation_options: dict[str, Any] | None = None,
     continue_prob: float = 0.0,
+    rig_randomize=None,
 ):
     """An SB3 VecEnv of ``n_envs`` monitored envs.
 
@@ -108,7 +117,9 @@ def make_vec_env(
     ``overrides``: OpsConfig fields (e.g. ``detector``) of every env; ``observation_options``:
     the observation's choices (e.g. ``{"history": 4}``) of every env; ``continue_prob``: the
     share of episode ends that carry on the same run (``ops_sim_ros.vec_env``; batched in-process
-    envs only).
+    envs only); ``rig_randomize``: ranges of the rig's figures that each env draws anew at
+    every reset (``ops_sim_ros.rig_randomization``): a DummyVecEnv of ``OpsEnv`` (the batched
+    env runs one rig for all its envs).
     """
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1 (got {n_envs})")
@@ -120,6 +131,18 @@ def make_vec_env(
         "overrides": overrides,
         "observation_options": observation_options,
     }
+    if rig_randomize:
+        if backend != "inprocess":
+            raise ValueError(
+                "--rig-randomize draws the rig in the simulator of each episode: it needs "
+                f"--backend inprocess (got {backend})"
+            )
+        if continue_prob:
+            raise ValueError(
+                "--rig-randomize and --continue-prob cannot be combined yet: a rig drawn per "
+                "episode runs on single in-process envs, carried-on episodes on the batched ones"
+            )
+        return _monitored("inprocess", [{"rig_randomize": rig_randomize}] * n_envs, env_kwargs)
     if backend == "ros":
         namespaces = _ros_namespaces(namespaces, n_envs)
         return _monitored("ros", [{"namespace": ns, "timeout_s": timeout_s} for ns in namespaces],

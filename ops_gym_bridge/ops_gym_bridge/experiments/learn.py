@@ -98,6 +98,7 @@ def build_metadata(
         "obs_history": args.obs_history,
         "observation": args.observation,
         "rig": args.rig_config,
+        "rig_randomize": args.rig_ranges.to_dict() if args.rig_ranges else None,
         "reward": args.reward,
         "hyperparams_set": args.hyperparams_set,
         "continue_prob": args.continue_prob,
@@ -193,6 +194,39 @@ def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
     return max(args.eval_freq // max(args.n_envs, 1), 1), evaluate, save_best
 
 
+def _carry_best(callbacks, best_dir: Path) -> None:
+    """The best evaluation so far of a resumed run (DIR/best's ``eval_final_power``): a later
+    evaluation replaces DIR/best only if it is better, as within one run."""
+    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
+
+    from .callbacks import BestModelCallback
+
+    try:
+        power = read_metadata(best_dir).get("eval_final_power")
+    except PolicyLoadError:
+        return
+    for callback in callbacks.callbacks:
+        if isinstance(callback, BestModelCallback) and isinstance(power, int | float):
+            callback.best = float(power)
+            print(f"[train] best so far (DIR/best): final P_N/P_max {power:.4f}", flush=True)
+
+
+def _latency_note(args) -> None:
+    """Say so when the observation's memory is shorter than the commands in flight: with
+    latency L a policy sees what its last L actions did only with --obs-history >= L + 1
+    (docs/physics.md, "A rig drawn per episode")."""
+    latency = make_config(args.stage, **args.rig_config).latency_steps
+    if args.rig_ranges:
+        latency = args.rig_ranges.max_latency(latency)
+    if latency > 0 and args.observation == "rig" and args.obs_history < latency + 1:
+        print(
+            f"[train] note: latency up to {latency} steps with --obs-history "
+            f"{args.obs_history}: the policy cannot see all the commands in flight (use "
+            f"--obs-history {latency + 1} or more)",
+            flush=True,
+        )
+
+
 def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     """Train; on success, Ctrl-C / SIGTERM or an error after the first step, save the model.
     Returns (interrupted, error, wall seconds)."""
@@ -209,6 +243,8 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     best = _best_model_hooks(run, t0_ref) if args.eval_freq > 0 else None
     callbacks = training_callbacks(total, not args.no_progress, every, out, normalize, max_s, best)
     callbacks.callbacks.extend(run.extra_callbacks)
+    if best is not None and args.resume:  # a resumed run keeps DIR/best unless it beats it
+        _carry_best(callbacks, out / "best")
     # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
     meta = build_metadata(
         args, run.params, model, run.venv, run.command_line, 0.0, False, run.previous
@@ -227,9 +263,11 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         f"hyperparams_set={args.hyperparams_set} setpoint_window={args.setpoint_window:g} "
         f"continue_prob={args.continue_prob:g} "
         + "".join(f"{k}={v} " for k, v in sorted(args.rig_config.items()))
+        + (f"rig_randomize=[{args.rig_ranges.describe()}] " if args.rig_ranges else "")
         + f"steps {run.start_steps} -> {total}, out={out}",
         flush=True,
     )
+    _latency_note(args)
     try:
         model.learn(
             total_timesteps=args.timesteps,

@@ -56,6 +56,7 @@ def build_parser():
     _add_algorithm_arguments(p)
     cli_args.add_env_arguments(p)
     cli_args.add_rig_arguments(p, "the policy (its training environments)")
+    cli_args.add_rig_randomize_argument(p)
     _add_budget_arguments(p)
     _add_run_arguments(p)
     return p

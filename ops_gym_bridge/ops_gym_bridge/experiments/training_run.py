@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ops_sim_ros.config import RIG_KEYS
+from ops_sim_ros.config import RIG_KEYS, make_config
+from ops_sim_ros.rig_randomization import RigRanges
 
 from .. import cli_args
 from . import hyperparams as hp
@@ -134,21 +135,40 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
 
 
 def _resolve_rig(args, out: Path, raw: list[str]) -> None:
-    """``args.rig_config``: the rig's OpsConfig fields (--realism, --rig); a resumed run
-    without them keeps its model's rig."""
+    """``args.rig_config``: the rig's OpsConfig fields (--realism, --rig), and
+    ``args.rig_ranges``: those drawn per episode (--rig-randomize); a resumed run without them
+    keeps its model's."""
+    try:
+        args.rig_config = cli_args.resolve_rig(args.realism, args.rig)
+        args.rig_ranges = cli_args.resolve_rig_randomize(getattr(args, "rig_randomize", None))
+    except ValueError as exc:
+        raise TrainError(str(exc)) from None
+    if args.resume:
+        _resume_rig(args, out, raw)
+    for bound in args.rig_ranges.bounds() if args.rig_ranges else ():
+        try:  # each end of every range with the rest of the rig
+            make_config(**{**args.rig_config, **bound})
+        except ValueError as exc:
+            raise TrainError(f"--rig-randomize {args.rig_ranges.describe()}: {exc}") from None
+
+
+def _resume_rig(args, out: Path, raw: list[str]) -> None:
+    """A resumed run keeps its model's rig and the ranges it draws its rigs from, unless the
+    command line gives them anew."""
     from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
 
     try:
-        args.rig_config = cli_args.resolve_rig(args.realism, args.rig)
-    except ValueError as exc:
-        raise TrainError(str(exc)) from None
-    if args.rig_config or not args.resume or not ({"--realism", "--rig"}.isdisjoint(raw)):
-        return
-    try:
-        config = read_metadata(out).get("config") or {}
+        stored = read_metadata(out)
     except PolicyLoadError:
         return  # resolve_run says what is wrong with the stored run
-    args.rig_config = {k: config[k] for k in ("realism", *RIG_KEYS) if k in config}
+    if not args.rig_config and {"--realism", "--rig"}.isdisjoint(raw):
+        config = stored.get("config") or {}
+        args.rig_config = {k: config[k] for k in ("realism", *RIG_KEYS) if k in config}
+    if getattr(args, "rig_randomize", None) is None and stored.get("rig_randomize"):
+        try:
+            args.rig_ranges = RigRanges.from_value(stored["rig_randomize"])
+        except (TypeError, ValueError) as exc:
+            raise TrainError(f"cannot resume from {out}: its rig_randomize: {exc}") from None
 
 
 def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> TrainRun:

@@ -85,6 +85,12 @@ def parse_args(argv=None):
     p.add_argument("--stage", type=int, default=5)
     p.add_argument("--mode", default="hard")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument(
+        "--realism",
+        default="ideal",
+        choices=("ideal", "lab"),
+        help="simlab's optics preset; the tracker is told the same (-p realism:=...)",
+    )
     p.add_argument("--param", action="append", default=[], help="tracker NAME:=VALUE")
     p.add_argument("--logdir", type=Path, default=REPO / "runs" / "bench_rig_tracker")
     p.add_argument("--out", type=Path, help="JSON (default docs/results/rig/...)")
@@ -95,6 +101,7 @@ def start_chain(args, logs: Path, rig_yaml: Path, procs: list) -> None:
     """simlab, calibrate (to its end), rig and tracker, each waited for; ``procs`` gets them."""
     lab_cmd = ["ros2", "run", "ops_rig_ros", "simlab", "--stage", str(args.stage)]
     lab_cmd += ["--mode", args.mode, "--seed", str(args.seed), "--rate-hz", f"{args.rate_hz:g}"]
+    lab_cmd += ["--realism", args.realism]
     lab = start([*lab_cmd, "--config-out", str(rig_yaml)], logs / "simlab.log")
     procs.append(lab)
     wait_for_line(logs / "simlab.log", "simlab ready", 60, lab)
@@ -108,6 +115,7 @@ def start_chain(args, logs: Path, rig_yaml: Path, procs: list) -> None:
     wait_for_line(logs / "rig.log", "scope connected", 60, rig)
     trk_cmd = ["ros2", "run", "ops_controller_ros", "tracker", "--ros-args"]
     trk_cmd += ["-p", f"rig_config:={rig_yaml}", "-p", f"seed:={args.seed}"]
+    trk_cmd += ["-p", f"realism:={args.realism}"]
     for assignment in args.param:
         trk_cmd += ["-p", assignment]
     tracker = start(trk_cmd, logs / "tracker.log")
@@ -135,6 +143,7 @@ def run_locked(node, power: list, seconds: float) -> tuple[float, float, float]:
 def main(argv=None) -> int:
     args = parse_args(argv)
     tag = f"n{args.stage}_{args.mode}_{args.rate_hz:g}hz_{args.seconds:g}s_seed{args.seed}"
+    tag += "_lab" if args.realism == "lab" else ""
     out = args.out or REPO / "docs" / "results" / "rig" / f"rig_tracker_{tag}.json"
     logs = args.logdir / tag
     logs.mkdir(parents=True, exist_ok=True)
@@ -173,6 +182,7 @@ def main(argv=None) -> int:
         "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "stage": args.stage,
         "mode": args.mode,
+        "realism": args.realism,
         "seed": args.seed,
         "rate_hz": args.rate_hz,
         "seconds": round(end - lock_at, 1),
