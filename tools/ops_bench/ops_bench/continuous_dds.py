@@ -5,7 +5,7 @@ computed from every `ops/power` reading received: fraction >= 0.95 after the fir
 losses (< 0.8), worst reading, readings to the first lock.
 
 Usage (after `source setup.bash`):
-  ops-bench continuous-dds --controller tracker --mode hard --seconds 600 \
+  ops-bench continuous-dds --controller tracker --mode hard --seconds 600 \\
       --seeds 1000 [--model models/n5_hard] [--nice -5] [--param hop_every:=0]
       [--sim-param lockstep:=true] [--out x.json]
 """

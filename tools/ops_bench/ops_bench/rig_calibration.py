@@ -4,7 +4,7 @@ ops_rig_ros/test/test_rig_calibration.py): per seed, whether it succeeded, the l
 error, how far the slot grid is off, and the full scale's error. Writes a JSON.
 
 Usage (after `source setup.bash`):
-  ops-bench rig-calibration --mode hard --realism lab --seeds 1-10 \
+  ops-bench rig-calibration --mode hard --realism lab --seeds 1-10 \\
       [--stage 5] [--out docs/results/rig/calibration_lab_hard.json]
 """
 

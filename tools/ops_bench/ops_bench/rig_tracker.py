@@ -9,7 +9,7 @@ and writes a JSON: share of readings >= 0.95 and >= 0.9, lock losses (a reading 
 prints it every 5 s) and the machine's load; every reading goes to `power.npy` with the logs.
 
 Usage (after `source setup.bash`; a ROS_DOMAIN_ID of its own):
-  ROS_DOMAIN_ID=57 nice -n 5 ops-bench rig-tracker --seconds 600 --rate-hz 50 \
+  ROS_DOMAIN_ID=57 nice -n 5 ops-bench rig-tracker --seconds 600 --rate-hz 50 \\
       [--seed 1] [--mode hard] [--param NAME:=VALUE] [--out docs/results/rig/X.json]
 """
 

@@ -6,8 +6,8 @@ folder is what `ros2 run ops_controller_ros policy --ros-args -p model:=DEST` an
 accept, like any model folder.
 
 Usage (after `source setup.bash`):
-  ops-bench switch-model --hold runs/ft/n5_medium_hold --acquire models/n5_medium \
-      --out models/n5_medium_long [--lock-power 0.95 --lock-readings 3 --release-power 0.8 \
+  ops-bench switch-model --hold runs/ft/n5_medium_hold --acquire models/n5_medium \\
+      --out models/n5_medium_long [--lock-power 0.95 --lock-readings 3 --release-power 0.8 \\
       --release-readings 2 --acquire-setpoint-window 1]
 """
 

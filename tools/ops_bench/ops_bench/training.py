@@ -10,7 +10,7 @@ policy on the testing environment (``--eval-episodes`` parallel 200-step episode
 * env-steps/s and gradient-steps/s of each candidate (training time only),
 * the evaluation P_N / P_max reached against training wall time.
 
-    ops-bench training --stage 5 --mode medium --minutes 3 \
+    ops-bench training --stage 5 --mode medium --minutes 3 \\
         --json runs/bench_training.json
 
 Candidates: ``--candidates paper-sac fast-sac fast-tqc fast-crossq fast-sac-h2`` (see
