@@ -36,24 +36,32 @@ def _send_scpi(port: int, command: str) -> None:
     send_scpi(port, command)
 
 
-def test_simlab_calibrate_rig_spgd_closes_the_loop_safely(procs, observer, tmp_path):
+def _calibrated_simlab(procs, tmp_path, *lab_args):
+    """simlab started with ``lab_args`` and ``calibrate`` run on it to its end: (the rig YAML,
+    the file of what the piezos received, the scope's port)."""
     rig_yaml = tmp_path / "rig.yaml"
     record = tmp_path / "received.txt"
     lab = procs.start(
         [
             *executable("ops_rig_ros", "simlab"),
-            *("--stage", "3", "--mode", "medium", "--seed", "3", "--format", "WORD"),
+            *lab_args,
             *("--config-out", rig_yaml, "--record", record),
         ],
         name="simlab",
     )
     port = int(lab.wait_for(r"simlab ready: .*TCPIP::127\.0\.0\.1::(\d+)::SOCKET", 30).group(1))
-
     cal = procs.start(
         [*executable("ops_rig_ros", "calibrate"), "--ros-args", "-p", f"config:={rig_yaml}"],
         name="calibrate",
     )
     assert cal.wait_exit(60) == 0, cal.output
+    return rig_yaml, record, port
+
+
+def test_simlab_calibrate_rig_spgd_closes_the_loop_safely(procs, observer, tmp_path):
+    rig_yaml, record, port = _calibrated_simlab(
+        procs, tmp_path, "--stage", "3", "--mode", "medium", "--seed", "3", "--format", "WORD"
+    )
     assert "fs_per_volt" in yaml.safe_load(rig_yaml.read_text())["calibration"]
 
     rig = procs.start(
@@ -157,22 +165,9 @@ def test_tracker_through_the_rig_is_back_within_2_s_of_a_5_s_scope_outage(
     """Issue 31's goal: the scope stopped for 5 s, then back: the rig holds its voltages, then
     is back >= 0.95 within 2 s of the scope's return (N = 5, hard, the tracker told the rig's
     optics by its YAML)."""
-    rig_yaml = tmp_path / "rig.yaml"
-    record = tmp_path / "received.txt"
-    lab = procs.start(
-        [
-            *executable("ops_rig_ros", "simlab"),
-            *("--stage", "5", "--mode", "hard", "--seed", "1"),
-            *("--config-out", rig_yaml, "--record", record),
-        ],
-        name="simlab",
+    rig_yaml, record, port = _calibrated_simlab(
+        procs, tmp_path, "--stage", "5", "--mode", "hard", "--seed", "1"
     )
-    port = int(lab.wait_for(r"simlab ready: .*TCPIP::127\.0\.0\.1::(\d+)::SOCKET", 30).group(1))
-    cal = procs.start(
-        [*executable("ops_rig_ros", "calibrate"), "--ros-args", "-p", f"config:={rig_yaml}"],
-        name="calibrate",
-    )
-    assert cal.wait_exit(60) == 0, cal.output
     rig = procs.start(
         [*executable("ops_rig_ros", "rig"), "--ros-args", "-p", f"config:={rig_yaml}"],
         name="rig",

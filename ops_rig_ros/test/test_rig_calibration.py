@@ -74,16 +74,21 @@ def test_find_slots_centres_an_unevenly_lit_pattern_by_its_mean():
     )
 
 
+def _calibrate_on(lab, tmp_path):
+    """``calibrate`` on ``lab``'s instruments through a rig YAML written for them."""
+    rig = Rig(load_rig_config(write_rig_yaml(lab, tmp_path / "rig.yaml")))
+    rig.drive.connect()
+    rig.connect_scope()
+    cal = calibrate(rig, log=lambda _: None)
+    rig.close()
+    return cal
+
+
 @pytest.mark.parametrize(("stage", "mode", "quiet"), [(5, "easy", True), (3, "medium", False)])
 def test_calibration_recovers_the_hidden_truth(tmp_path, stage, mode, quiet):
     lab = Lab(stage=stage, mode=mode, seed=11, quiet=quiet, scope_format="WORD")
     try:
-        cfg = load_rig_config(write_rig_yaml(lab, tmp_path / "rig.yaml"))
-        rig = Rig(cfg)
-        rig.drive.connect()
-        rig.connect_scope()
-        cal = calibrate(rig, log=lambda _: None)
-        rig.close()
+        cal = _calibrate_on(lab, tmp_path)
         truth = lab.optics.truth
         np.testing.assert_allclose(cal.fs_per_volt, truth.fs_per_volt, rtol=0.02)
         period_v = optical_period_fs() / truth.fs_per_volt
@@ -106,12 +111,7 @@ def test_calibration_survives_hard_drift_on_a_lab_rig(tmp_path, seed):
     and fs per volt came out 4-5.6 % high on seeds 4 and 5 without the second."""
     lab = Lab(stage=5, mode="hard", realism="lab", seed=seed, scope_format="WORD")
     try:
-        cfg = load_rig_config(write_rig_yaml(lab, tmp_path / "rig.yaml"))
-        rig = Rig(cfg)
-        rig.drive.connect()
-        rig.connect_scope()
-        cal = calibrate(rig, log=lambda _: None)
-        rig.close()
+        cal = _calibrate_on(lab, tmp_path)
         np.testing.assert_allclose(cal.fs_per_volt, lab.optics.truth.fs_per_volt, rtol=0.025)
         np.testing.assert_allclose(cal.slot_positions, lab.optics.truth.slot_positions, atol=0.5)
         received = np.array(lab.received)[:, 1]
