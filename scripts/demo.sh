@@ -21,18 +21,9 @@ stop_all() {
 }
 trap stop_all EXIT
 
-# wait_for_line FILE PATTERN SECONDS: wait until a process has logged PATTERN.
-wait_for_line() {
-  local deadline=$((SECONDS + $3))
-  until grep -q "$2" "$1" 2>/dev/null; do
-    if ((SECONDS > deadline)); then
-      echo "[demo] timed out waiting for '$2' in $1:" >&2
-      cat "$1" >&2
-      exit 1
-    fi
-    sleep 0.1
-  done
-}
+DEMO_TAG=demo
+# shellcheck source=scripts/demo_lib.sh
+source scripts/demo_lib.sh  # wait_for_line (the working directory is the root)
 
 echo "[demo] ROS_DOMAIN_ID=$ROS_DOMAIN_ID; starting the simulator (stage 5, easy mode)"
 ros2 run ops_sim_ros sim --ros-args -p stage:=5 -p mode:=easy -p seed:=7 >"$OUT/sim.log" 2>&1 &

@@ -33,18 +33,9 @@ stop_all() {
 }
 trap stop_all EXIT
 
-# wait_for_line FILE PATTERN SECONDS: wait until a process has logged PATTERN.
-wait_for_line() {
-  local deadline=$((SECONDS + $3))
-  until grep -q "$2" "$1" 2>/dev/null; do
-    if ((SECONDS > deadline)); then
-      echo "[demo-rig] timed out waiting for '$2' in $1:" >&2
-      cat "$1" >&2
-      exit 1
-    fi
-    sleep 0.1
-  done
-}
+DEMO_TAG=demo-rig
+# shellcheck source=scripts/demo_lib.sh
+source scripts/demo_lib.sh  # wait_for_line (the working directory is the root)
 
 echo "[demo-rig] ROS_DOMAIN_ID=$ROS_DOMAIN_ID; simulated lab: stage 5, hard, seed $SEED, ${RATE_HZ} Hz"
 ros2 run ops_rig_ros simlab --stage 5 --mode hard --seed "$SEED" --rate-hz "$RATE_HZ" \
