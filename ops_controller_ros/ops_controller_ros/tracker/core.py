@@ -68,6 +68,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             if self._weights is None:
                 self._weights = np.ones(self.stacker.num_slots + 1)
             self._weights[-1] *= self.params.power_weight
+        self._weighted_stacker = None  # _fit_stacker's, for the model now
         self.period_fs = model.optical_period_fs
         self.range_cycles = model.actuator_range_cycles
         if setpoint_range_fs is None:
@@ -353,10 +354,14 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
 
     @property
     def _fit_stacker(self):
-        """The model as the fits see it: readings weighed per entry (.weights)."""
+        """The model as the fits see it: readings weighed per entry (.weights); built once per
+        model (the calibration replaces ``self.stacker`` when it adopts new optics)."""
         if self._weights is None:
             return self.stacker
-        return WeightedStacker(self.stacker, self._weights)
+        cached = self._weighted_stacker
+        if cached is None or cached.inner is not self.stacker:
+            cached = self._weighted_stacker = WeightedStacker(self.stacker, self._weights)
+        return cached
 
     def _weighed(self, y):
         return y if self._weights is None else y * self._weights
