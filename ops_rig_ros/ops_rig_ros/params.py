@@ -3,8 +3,7 @@ lists them from here. Everything about the instruments is in the rig YAML (``con
 
 from __future__ import annotations
 
-from ops_sim_ros.config import LIMITS
-from ops_sim_ros.node_params import ParamSpec
+from ops_sim_ros.node_params import DIAGNOSTICS_PERIOD_SPEC, ParamSpec, samples_per_slot_spec
 
 PARAMS = [
     ParamSpec(
@@ -22,14 +21,7 @@ PARAMS = [
         special=(-1.0,),
         read_only=True,
     ),
-    ParamSpec(
-        "samples_per_slot",
-        8,
-        "trace samples per pulse slot in ops/intensity",
-        low=LIMITS["samples_per_slot"][0],
-        high=LIMITS["samples_per_slot"][1],
-        read_only=True,
-    ),
+    samples_per_slot_spec("trace samples per pulse slot in ops/intensity"),
     ParamSpec(
         "reconnect_period_s",
         1.0,
@@ -38,7 +30,7 @@ PARAMS = [
         high=60.0,
         read_only=True,
     ),
-    ParamSpec("diagnostics_period_s", 1.0, "period of /diagnostics status", low=0.1, high=3600.0),
+    DIAGNOSTICS_PERIOD_SPEC,
     ParamSpec(
         "park_timeout_s",
         10.0,

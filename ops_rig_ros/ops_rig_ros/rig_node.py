@@ -91,7 +91,6 @@ class RigNode(Node):
         self.last_error = ""
         self._retry_at = {"scope": 0.0, "piezo": 0.0}
         self._warned_at: dict[str, float] = {}
-        self._rejected_said_at = float("-inf")
         self._parked = False
 
         self.create_timer(1.0 / self.rate_hz, self._tick)
@@ -146,17 +145,13 @@ class RigNode(Node):
 
     def _take_command(self) -> None:
         msg = self._inbox.take_latest()
-        rejected = self._inbox.rejected
-        now = time.monotonic()
-        if rejected and now - self._rejected_said_at >= _WARN_PERIOD_S:
-            total = sum(rejected.values())
-            problems = "; ".join(f"{n} x {p}" for p, n in rejected.items())
+        report = self._inbox.rejections_to_report(_WARN_PERIOD_S)
+        if report is not None:
+            total, problems = report
             self.get_logger().warning(
                 f"refused {total} delay command(s) ({problems}); the piezos hold"
             )
             self.last_error = f"refused delay command: {problems}"
-            rejected.clear()
-            self._rejected_said_at = now
         if msg is None:
             return
         if not self.fresh:

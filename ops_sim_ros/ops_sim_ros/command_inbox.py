@@ -16,6 +16,7 @@ A lockstep simulator steps on each command, so it keeps its callback (``sim_node
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 from rclpy.callback_groups import CallbackGroup
@@ -68,8 +69,9 @@ class CommandInbox:
             raw=True,
         )
         self._verdicts: dict[bytes, str | None] = {}
-        self.rejected: dict[str, int] = {}  # problem -> count since the caller last cleared it
+        self.rejected: dict[str, int] = {}  # problem -> count since they were last reported
         self.taken = 0  # messages taken so far
+        self._reported_at = float("-inf")
 
     def _verdict(self, raw: bytes) -> tuple[str | None, Float32MultiArray | None]:
         known = self._verdicts.get(raw)  # None: unknown, or valid (then it is decoded)
@@ -107,6 +109,19 @@ class CommandInbox:
             else:
                 self.rejected[problem] = self.rejected.get(problem, 0) + 1
         return latest
+
+    def rejections_to_report(self, period_s: float) -> tuple[int, str] | None:
+        """The rejected messages to warn about, at most once per ``period_s``: their number and
+        ``"<n> x <problem>; ..."``; None when there are none or the last report is too recent.
+        A report clears the counts."""
+        now = time.monotonic()
+        if not self.rejected or now - self._reported_at < period_s:
+            return None
+        total = sum(self.rejected.values())
+        problems = "; ".join(f"{n} x {problem}" for problem, n in self.rejected.items())
+        self.rejected.clear()
+        self._reported_at = now
+        return total, problems
 
     def destroy(self) -> None:
         self._node.destroy_subscription(self.subscription)

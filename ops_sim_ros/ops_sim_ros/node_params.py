@@ -28,6 +28,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from .config import LIMITS
 from .ros_interface import ParameterError
 
 
@@ -81,6 +82,21 @@ class ParamSpec:
                 FloatingPointRange(from_value=float(self.low), to_value=float(self.high), step=0.0)
             ]
         return d
+
+
+# Parameters of both nodes that publish the optics' outputs (ops_sim and ops_rig), declared once.
+
+
+def samples_per_slot_spec(description: str) -> ParamSpec:
+    """``samples_per_slot``: trace samples per pulse slot, in the config's range, fixed after
+    start."""
+    low, high = LIMITS["samples_per_slot"]
+    return ParamSpec("samples_per_slot", 8, description, low=low, high=high, read_only=True)
+
+
+DIAGNOSTICS_PERIOD_SPEC = ParamSpec(
+    "diagnostics_period_s", 1.0, "period of /diagnostics status", low=0.1, high=3600.0
+)
 
 
 def coerce(spec: ParamSpec, value):

@@ -107,8 +107,7 @@ def read_rig_model(path) -> RigModel:
     except ValueError as exc:
         raise RigFileError(f"the rig file {path}: {exc}") from None
     try:
-        reach = _reach_fs_per_reading(raw, stage)
-        span = _setpoint_range_fs(raw, stage)
+        reach, span = _line_reach_and_range(raw, stage)
     except ValueError as exc:
         raise RigFileError(f"the rig file {path}: {exc}") from None
     return RigModel(path, stage, optics, given, bool(raw.get("calibration")), reach, span)
@@ -124,35 +123,43 @@ def _numbers(value, key: str, n: int) -> list[float]:
     return [float(v) for v in values]
 
 
-def _reach_fs_per_reading(raw: dict, n: int) -> float | None:
-    """slew / rate x |fs per volt|, least over the stages; None without a calibration."""
+def _line_reach_and_range(raw: dict, n: int) -> tuple[float | None, tuple | None]:
+    """What the calibration and the limits give the nominal model, each section read once:
+
+    - the reach: slew / rate x |fs per volt|, least over the stages (fs per reading), None
+      without ``fs_per_volt`` and ``slew_volts_per_s``;
+    - the set-point range: (low, high) set-points per stage, fs, that the channels' limits allow
+      through the calibration (fs = (volts - zero_volts) x fs_per_volt), None without
+      ``fs_per_volt``, ``zero_volts``, ``volts_min`` and ``volts_max``.
+    """
     calibration, limits = raw.get("calibration"), raw.get("limits")
     if not isinstance(calibration, dict) or not isinstance(limits, dict):
-        return None
-    if "fs_per_volt" not in calibration or "slew_volts_per_s" not in limits:
-        return None
+        return None, None
+    given, limited = set(calibration), set(limits)
+    has_reach = "fs_per_volt" in given and "slew_volts_per_s" in limited
+    has_range = {"fs_per_volt", "zero_volts"} <= given and {"volts_min", "volts_max"} <= limited
+    if not (has_reach or has_range):
+        return None, None
+    rate = _rate_hz(raw) if has_reach else None
+    k = _numbers(calibration["fs_per_volt"], "calibration.fs_per_volt", n)
+    reach = span = None
+    if has_reach:
+        slew = _numbers(limits["slew_volts_per_s"], "limits.slew_volts_per_s", n)
+        reach = min(abs(a) * b for a, b in zip(k, slew, strict=True)) / rate
+    if has_range:
+        zero = _numbers(calibration["zero_volts"], "calibration.zero_volts", n)
+        vmin = _numbers(limits["volts_min"], "limits.volts_min", n)
+        vmax = _numbers(limits["volts_max"], "limits.volts_max", n)
+        ends = [
+            sorted(((a - z) * g, (b - z) * g))
+            for a, b, z, g in zip(vmin, vmax, zero, k, strict=True)
+        ]
+        span = tuple(e[0] for e in ends), tuple(e[1] for e in ends)
+    return reach, span
+
+
+def _rate_hz(raw: dict) -> float:
     rate = raw.get("rate_hz", 50.0)
     if not isinstance(rate, int | float) or isinstance(rate, bool) or not 1.0 <= rate <= 1000.0:
         raise ValueError(f"rate_hz must be a number in [1, 1000] (got {rate!r})")
-    k = _numbers(calibration["fs_per_volt"], "calibration.fs_per_volt", n)
-    slew = _numbers(limits["slew_volts_per_s"], "limits.slew_volts_per_s", n)
-    return min(abs(a) * b for a, b in zip(k, slew, strict=True)) / float(rate)
-
-
-def _setpoint_range_fs(raw: dict, n: int) -> tuple | None:
-    """(low, high) set-points per stage, fs, that the channels' limits allow through the
-    calibration (fs = (volts - zero_volts) x fs_per_volt); None without a calibration."""
-    calibration, limits = raw.get("calibration"), raw.get("limits")
-    if not isinstance(calibration, dict) or not isinstance(limits, dict):
-        return None
-    keys = ("volts_min", "volts_max")
-    if not {"fs_per_volt", "zero_volts"} <= set(calibration) or not set(keys) <= set(limits):
-        return None
-    k = _numbers(calibration["fs_per_volt"], "calibration.fs_per_volt", n)
-    zero = _numbers(calibration["zero_volts"], "calibration.zero_volts", n)
-    vmin = _numbers(limits["volts_min"], "limits.volts_min", n)
-    vmax = _numbers(limits["volts_max"], "limits.volts_max", n)
-    ends = [
-        sorted(((a - z) * g, (b - z) * g)) for a, b, z, g in zip(vmin, vmax, zero, k, strict=True)
-    ]
-    return tuple(e[0] for e in ends), tuple(e[1] for e in ends)
+    return float(rate)

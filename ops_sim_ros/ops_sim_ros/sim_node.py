@@ -22,7 +22,14 @@ from std_srvs.srv import Trigger
 
 from .command_inbox import CommandInbox
 from .config import DETECTORS, LIMITS, MAX_STAGE, MODES, SPLITS, make_config
-from .node_params import ParamSpec, check_change, coerce, declare_all
+from .node_params import (
+    DIAGNOSTICS_PERIOD_SPEC,
+    ParamSpec,
+    check_change,
+    coerce,
+    declare_all,
+    samples_per_slot_spec,
+)
 from .rig_params import RIG_PARAM_KEYS, RIG_PARAMS
 from .ros_interface import (
     QOS_RELIABLE,
@@ -86,21 +93,8 @@ PARAMS = [
         "rate_hz", 100.0, "free-running step rate (a rig's: 1 Hz to 1 kHz)", low=1.0, high=1000.0
     ),
     ParamSpec("lockstep", False, "true: one step per command instead of a timer"),
-    ParamSpec(
-        "samples_per_slot",
-        8,
-        "trace samples per pulse slot",
-        low=LIMITS["samples_per_slot"][0],
-        high=LIMITS["samples_per_slot"][1],
-        read_only=True,
-    ),
-    ParamSpec(
-        "diagnostics_period_s",
-        1.0,
-        "period of /diagnostics status",
-        low=0.1,
-        high=3600.0,
-    ),
+    samples_per_slot_spec("trace samples per pulse slot"),
+    DIAGNOSTICS_PERIOD_SPEC,
     # -1 means "the mode's default"; otherwise the config's range (LIMITS) applies.
     *[
         ParamSpec(
@@ -174,7 +168,6 @@ class SimNode(Node):
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self._cmd_sub = None  # lockstep: a callback per command
         self._inbox = None  # free-running: commands taken at each step (command_inbox)
-        self._rejections_said_at = float("-inf")
         self.create_service(Trigger, SERVICE_RESET, self._on_reset)
 
         self._result = self._sim.reset()
@@ -293,17 +286,13 @@ class SimNode(Node):
 
     def _take_commands(self):
         msg = self._inbox.take_latest()
-        rejected = self._inbox.rejected
-        now = time.monotonic()
-        if rejected and now - self._rejections_said_at >= _WARN_PERIOD_S:
-            total = sum(rejected.values())
-            problems = "; ".join(f"{n} x {problem}" for problem, n in rejected.items())
+        report = self._inbox.rejections_to_report(_WARN_PERIOD_S)
+        if report is not None:
+            total, problems = report
             self.get_logger().warning(
                 f"rejected {total} delay command(s) in the last {_WARN_PERIOD_S:g} s or so "
                 f"({problems}); set-points unchanged"
             )
-            rejected.clear()
-            self._rejections_said_at = now
         if msg is not None:
             self._apply_command(msg)
 

@@ -180,12 +180,7 @@ class BatchedSimulation:
         sp = np.array(setpoints_fs, dtype=np.float64).reshape(self.num_envs, self.stage)
         if not np.isfinite(sp).all():
             raise ValueError("set-points must be finite")
-        clipped = np.abs(sp) > self.range_fs
-        _clip(sp, -self.range_fs, self.range_fs, out=sp)
-        self.setpoints_fs = sp
-        self.step_count += 1
-        self.last = self._measure(sp, clipped)
-        return self.last
+        return self._step_to(sp)
 
     def step_increments(self, actions) -> StepResult:
         """Move set-points by ``actions`` in [-1, 1] (clipped) times the actuator's max step."""
@@ -195,6 +190,10 @@ class BatchedSimulation:
         sp = _clip(a, -1.0, 1.0)
         sp *= self.max_step_fs
         sp += self.setpoints_fs
+        return self._step_to(sp)
+
+    def _step_to(self, sp: np.ndarray) -> StepResult:
+        """One step to the set-points ``sp`` (B, N; clipped in place to +- actuator range)."""
         clipped = np.abs(sp) > self.range_fs
         _clip(sp, -self.range_fs, self.range_fs, out=sp)
         self.setpoints_fs = sp

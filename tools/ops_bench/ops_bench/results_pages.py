@@ -6,7 +6,8 @@ One page per topic, ``docs/results/<topic>/index.md``, each made of the topic's 
     <!-- generated: KIND ARG ... -->
 
 is replaced by a table rendered here from the stored JSON (KIND one of :data:`RENDERERS`), with
-a line that names the files and the command that stored them. Superseded figures (older
+a line that names the files and the command that stored them (a directive in a block quote,
+``> <!-- generated: ... -->``, gives lines in the block quote). Superseded figures (older
 controllers' runs, the earlier physics; the only place commit hashes stand) go to one page,
 ``docs/results/history.md`` (from ``docs/results/history.notes.md``); ``docs/results.md`` is a
 short index of the pages and their sections. The pages are generated: edit ``notes.md`` or
@@ -34,7 +35,9 @@ from ops_bench.continuous_table import table_lines as dds_table_lines
 
 DOCS = REPO / "docs"
 RESULTS = DOCS / "results"
-DIRECTIVE = re.compile(r"^<!-- generated: ([\w-]+)((?: [^ >]+)*) -->$", re.M)
+MODELS = REPO / "models"
+#: a directive line, alone or in a block quote (its "> " prefix then starts every rendered line)
+DIRECTIVE = re.compile(r"^((?:> ?)*)<!-- generated: ([\w-]+)((?: [^ >]+)*) -->$", re.M)
 #: a commit hash: 7-40 hex digits with at least one letter and one digit (not a plain number)
 COMMIT = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
 
@@ -294,12 +297,19 @@ def episodes_cell(ref: str) -> str:
     if not (RESULTS / ref / "evaluation.json").exists():
         return ref  # a figure stored elsewhere, quoted with its page
     test = json.loads((RESULTS / ref / "evaluation.json").read_text())["splits"]["test"]
-    per_episode = test["final_power_per_episode"]  # per seed, or flat in older files
+    finals, median = episode_finals(test)
+    below = sum(x < 0.8 for x in finals)
+    return f"{test['final_power_mean']:.3f}, {median:.3f}, {below}"
+
+
+def episode_finals(split: dict) -> tuple[list[float], float]:
+    """The final P_N/P_max of every episode of a stored ``evaluate`` split, sorted, and their
+    median."""
+    per_episode = split["final_power_per_episode"]  # per seed, or flat in older files
     finals = sorted(x for row in per_episode for x in (row if isinstance(row, list) else [row]))
     mid = len(finals) // 2
     median = finals[mid] if len(finals) % 2 else (finals[mid - 1] + finals[mid]) / 2
-    below = sum(x < 0.8 for x in finals)
-    return f"{test['final_power_mean']:.3f}, {median:.3f}, {below}"
+    return finals, median
 
 
 def continuous_cell(ref: str) -> str:
@@ -327,12 +337,58 @@ def render_fine_tunes(args: list[str], page_dir: Path) -> str:
     return caption + "\n\n" + "\n".join(lines)
 
 
+HELD_OUT_HEAD = [
+    "| model | mean ± std over seeds | median episode | worst episode | episodes < 0.8 |",
+    "|---|---|---|---|---|",
+]
+
+
+def seeds_text(seeds: list[int]) -> str:
+    """``evaluate --seeds`` as written in the docs: ``100 ... 119`` for a run of seeds."""
+    if len(seeds) > 2 and seeds == list(range(seeds[0], seeds[0] + len(seeds))):
+        return f"{seeds[0]} ... {seeds[-1]}"
+    return " ".join(str(s) for s in seeds)
+
+
+def render_held_out(args: list[str], page_dir: Path) -> str:
+    """The shipped models' held-out evaluation (``models/NAME/eval/evaluation.json``, testing
+    split), one row per model named in the directive, in its order."""
+    lines = list(HELD_OUT_HEAD)
+    commands = []
+    for name in args:
+        data = json.loads((MODELS / name / "eval" / "evaluation.json").read_text())
+        test = data["splits"]["test"]
+        finals, median = episode_finals(test)
+        below = sum(x < 0.8 for x in finals)
+        cells = [
+            name,
+            f"{test['final_power_mean']:.3f} ± {test['final_power_std']:.3f}",
+            f"{median:.3f}",
+            f"{finals[0]:.3f}",
+            f"{below} / {len(finals)}",
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+        commands.append(
+            f"--seeds {seeds_text(data['seeds'])} --episodes {data['episodes_per_seed']}"
+        )
+    protocol = set(commands)
+    options = protocol.pop() if len(protocol) == 1 else "(each model's seeds and episodes)"
+    caption = (
+        "*From `models/NAME/eval/evaluation.json` (NAME: "
+        + ", ".join(f"`{a}`" for a in args)
+        + f"), stored by `ros2 run ops_gym_bridge evaluate models/NAME --splits test {options} "
+        "--out models/NAME/eval`.*"
+    )
+    return caption + "\n\n" + "\n".join(lines)
+
+
 RENDERERS = {
     "table1": render_table1,
     "table1-sets": render_table1_sets,
     "continuous": render_continuous,
     "continuous-dds": render_continuous_dds,
     "fine-tunes": render_fine_tunes,
+    "held-out": render_held_out,
 }
 
 
@@ -343,10 +399,13 @@ def expand(text: str, page_dir: Path) -> str:
     """``text`` with each directive line replaced by its rendered table."""
 
     def one(match: re.Match) -> str:
-        kind, args = match.group(1), match.group(2).split()
+        quote, kind, args = match.group(1), match.group(2), match.group(3).split()
         if kind not in RENDERERS:
             raise ValueError(f"unknown directive {kind!r} (one of {', '.join(RENDERERS)})")
-        return RENDERERS[kind](args, page_dir)
+        text = RENDERERS[kind](args, page_dir)
+        if not quote:
+            return text
+        return "\n".join((quote + line).rstrip() for line in text.split("\n"))
 
     return DIRECTIVE.sub(one, text)
 

@@ -92,3 +92,39 @@ def test_every_relative_link_of_the_pages_resolves():
             if not target.startswith("http") and not (path.parent / target).exists():
                 broken.append(f"{results_pages.rel(path)}: {target}")
     assert broken == []
+
+
+def test_held_out_table_renders_a_fixture_in_a_block_quote(tmp_path, monkeypatch):
+    finals = {"n5_easy": [[0.99, 0.5], [0.97, 0.98]], "n5_hard": [[0.9, 0.95, 0.7]]}
+    for name, per_seed in finals.items():
+        (tmp_path / name / "eval").mkdir(parents=True)
+        flat = [x for row in per_seed for x in row]
+        test = {
+            "final_power_mean": sum(flat) / len(flat),
+            "final_power_std": 0.0123,
+            "final_power_per_episode": per_seed,
+        }
+        data = {
+            "seeds": [100 + i for i in range(len(per_seed))],
+            "episodes_per_seed": len(per_seed[0]),
+            "splits": {"test": test},
+        }
+        (tmp_path / name / "eval" / "evaluation.json").write_text(json.dumps(data))
+    monkeypatch.setattr(results_pages, "MODELS", tmp_path)
+    text = results_pages.expand(
+        "> before\n> <!-- generated: held-out n5_hard n5_easy -->\n> after\n", tmp_path
+    )
+    lines = text.splitlines()
+    assert lines[0] == "> before" and lines[-1] == "> after"
+    assert lines[1].startswith("> *From `models/NAME/eval/evaluation.json` (NAME: `n5_hard`, `n5_")
+    assert "ros2 run ops_gym_bridge evaluate models/NAME --splits test" in lines[1]
+    assert "(each model's seeds and episodes)" in lines[1]  # the two differ here
+    assert lines[2] == ">"  # the blank line stays inside the quote
+    assert lines[3] == "> " + results_pages.HELD_OUT_HEAD[0]
+    assert lines[5] == "> | n5_hard | 0.850 ± 0.012 | 0.900 | 0.700 | 1 / 3 |"
+    assert lines[6] == "> | n5_easy | 0.860 ± 0.012 | 0.975 | 0.500 | 1 / 4 |"
+
+
+def test_seeds_are_written_as_the_docs_write_them():
+    assert results_pages.seeds_text(list(range(100, 120))) == "100 ... 119"
+    assert results_pages.seeds_text([7, 9]) == "7 9"

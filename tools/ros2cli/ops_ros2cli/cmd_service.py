@@ -2,8 +2,6 @@
 
 import time
 
-import yaml
-
 from ops_ros2cli import graph
 
 
@@ -52,49 +50,25 @@ def add_verbs(verbs):
     p.set_defaults(_main=main_type)
 
 
-def _service_names_and_types(node, include_hidden):
-    own = node.get_fully_qualified_name() + "/"
-    result = []
-    for name, types in sorted(node.get_service_names_and_types()):
-        if name.startswith(own):
-            continue
-        if not include_hidden and graph.is_hidden_name(name):
-            continue
-        result.append((name, types))
-    return result
-
-
 def main_list(args):
-    with graph.CliNode(args) as cli:
-        cli.settle_graph(graph.list_spin_time(args))
-        services = _service_names_and_types(cli.node, args.include_hidden_services)
-    if args.count_services:
-        print(len(services))
-        return 0
-    for name, types in services:
-        if args.show_types:
-            print(f"{name} [{', '.join(types)}]")
-        else:
-            print(name)
-    return 0
+    return graph.print_list(
+        args,
+        lambda node: node.get_service_names_and_types(),
+        args.include_hidden_services,
+        args.count_services,
+        skip_own=True,
+    )
 
 
 def main_type(args):
-    with graph.CliNode(args) as cli:
-        name = args.service_name if args.service_name.startswith("/") else "/" + args.service_name
-        found = cli.wait_for(
-            lambda: dict(cli.node.get_service_names_and_types()).get(name),
-            graph.discovery_timeout(args),
-        )
-    if not found:
-        return 1
-    for t in found:
-        print(t)
-    return 0
+    name = args.service_name if args.service_name.startswith("/") else "/" + args.service_name
+    return graph.print_type(
+        args, lambda node: name, lambda node: node.get_service_names_and_types()
+    )
 
 
 def main_call(args):
-    from ops_ros2cli.msgutil import get_service, set_message_fields
+    from ops_ros2cli.msgutil import fill_from_yaml, get_service
 
     if args.rate is not None and args.rate <= 0:
         raise RuntimeError("rate must be greater than zero")
@@ -105,20 +79,7 @@ def main_call(args):
         raise RuntimeError("The passed service type is invalid") from None
     if not (hasattr(srv_class, "Request") and hasattr(srv_class, "Response")):
         raise RuntimeError("The passed type is not a service")
-    try:
-        values = yaml.safe_load(args.values)
-    except yaml.YAMLError as exc:
-        detail = " ".join(str(exc).split())
-        raise RuntimeError(f"The passed value is not valid YAML: {detail}") from None
-    if values is None:
-        values = {}
-    if not isinstance(values, dict):
-        raise RuntimeError("The passed value needs to be a dictionary in YAML format")
-    request = srv_class.Request()
-    try:
-        set_message_fields(request, values)
-    except Exception as exc:
-        raise RuntimeError(f"Failed to populate field: {exc}") from None
+    request = fill_from_yaml(srv_class.Request(), args.values)
 
     package = args.service_type.split("/")[0]
     srv_name = args.service_type.split("/")[-1]

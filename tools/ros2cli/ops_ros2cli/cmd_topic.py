@@ -5,8 +5,6 @@ import math
 import sys
 import time
 
-import yaml
-
 from ops_ros2cli import graph
 from ops_ros2cli.qos import (
     adapt_to_publishers,
@@ -246,42 +244,21 @@ def _add_type(verbs):
 # list / type ------------------------------------------------------------------
 
 
-def _topic_names_and_types(node, include_hidden_topics=False):
-    result = []
-    for name, types in sorted(node.get_topic_names_and_types()):
-        if not include_hidden_topics and graph.is_hidden_name(name):
-            continue
-        result.append((name, types))
-    return result
-
-
 def main_list(args):
-    with graph.CliNode(args) as cli:
-        cli.settle_graph(graph.list_spin_time(args))
-        topics = _topic_names_and_types(cli.node, args.include_hidden_topics)
-    if args.count_topics:
-        print(len(topics))
-        return 0
-    for name, types in topics:
-        if args.show_types:
-            print(f"{name} [{', '.join(types)}]")
-        else:
-            print(name)
-    return 0
+    return graph.print_list(
+        args,
+        lambda node: node.get_topic_names_and_types(),
+        args.include_hidden_topics,
+        args.count_topics,
+    )
 
 
 def main_type(args):
-    with graph.CliNode(args) as cli:
-        name = graph.expand_topic(cli.node, args.topic_name)
-        found = cli.wait_for(
-            lambda: dict(cli.node.get_topic_names_and_types()).get(name),
-            graph.discovery_timeout(args),
-        )
-    if not found:
-        return 1
-    for t in found:
-        print(t)
-    return 0
+    return graph.print_type(
+        args,
+        lambda node: graph.expand_topic(node, args.topic_name),
+        lambda node: node.get_topic_names_and_types(),
+    )
 
 
 def main_info(args):
@@ -512,26 +489,13 @@ def main_hz(args):
 
 
 def main_pub(args):
-    from ops_ros2cli.msgutil import get_message, set_message_fields
+    from ops_ros2cli.msgutil import fill_from_yaml, get_message
 
     try:
         msg_class = get_message(args.message_type)
     except (AttributeError, ImportError, ValueError):
         raise RuntimeError("The passed message type is invalid") from None
-    try:
-        values = yaml.safe_load(args.values)
-    except yaml.YAMLError as exc:
-        detail = " ".join(str(exc).split())
-        raise RuntimeError(f"The passed value is not valid YAML: {detail}") from None
-    if values is None:
-        values = {}
-    if not isinstance(values, dict):
-        raise RuntimeError("The passed value needs to be a dictionary in YAML format")
-    msg = msg_class()
-    try:
-        set_message_fields(msg, values)
-    except Exception as exc:
-        raise RuntimeError(f"Failed to populate field: {exc}") from None
+    msg = fill_from_yaml(msg_class(), args.values)
 
     times = 1 if args.once else args.times
     wait_matching = args.wait_matching_subscriptions

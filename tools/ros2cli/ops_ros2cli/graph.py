@@ -191,3 +191,49 @@ def expand_topic(node, topic_name):
     from rclpy.expand_topic_name import expand_topic_name
 
     return expand_topic_name(topic_name, node.get_name(), node.get_namespace())
+
+
+def print_list(args, names_and_types, include_hidden, count_only, skip_own=False):
+    """``ros2 topic list`` / ``ros2 service list``: settle the graph, then print the number of
+    entries, or each name (with its types under ``--show-types``), sorted.
+
+    ``names_and_types(node)`` gives the graph's (name, types) pairs; hidden names are left out
+    unless ``include_hidden``, and with ``skip_own`` the CLI node's own (its services).
+    Returns the exit status, 0.
+    """
+    with CliNode(args) as cli:
+        cli.settle_graph(list_spin_time(args))
+        own = cli.node.get_fully_qualified_name() + "/"
+        entries = [
+            (name, types)
+            for name, types in sorted(names_and_types(cli.node))
+            if not (skip_own and name.startswith(own))
+            and (include_hidden or not is_hidden_name(name))
+        ]
+    if count_only:
+        print(len(entries))
+        return 0
+    for name, types in entries:
+        if args.show_types:
+            print(f"{name} [{', '.join(types)}]")
+        else:
+            print(name)
+    return 0
+
+
+def print_type(args, name_of, names_and_types):
+    """``ros2 topic type`` / ``ros2 service type``: wait for the entity and print its types.
+
+    ``name_of(node)`` gives the full name looked for; ``names_and_types(node)`` the graph's
+    (name, types) pairs. Returns the exit status: 1 when it was not found in time.
+    """
+    with CliNode(args) as cli:
+        name = name_of(cli.node)
+        found = cli.wait_for(
+            lambda: dict(names_and_types(cli.node)).get(name), discovery_timeout(args)
+        )
+    if not found:
+        return 1
+    for t in found:
+        print(t)
+    return 0

@@ -184,3 +184,26 @@ def set_message_fields(msg, values):
                 elements.append(element)
             value = elements
         setattr(msg, field_name, value)
+
+
+def fill_from_yaml(msg, text):
+    """Fill ``msg`` from the YAML mapping ``text`` (the ``values`` argument of
+    ``ros2 topic pub`` and ``ros2 service call``); return ``msg``.
+
+    Raises RuntimeError with the real tool's message when the text is not YAML, not a
+    mapping, or names a field the message does not have.
+    """
+    try:
+        values = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        detail = " ".join(str(exc).split())
+        raise RuntimeError(f"The passed value is not valid YAML: {detail}") from None
+    if values is None:
+        values = {}
+    if not isinstance(values, dict):
+        raise RuntimeError("The passed value needs to be a dictionary in YAML format")
+    try:
+        set_message_fields(msg, values)
+    except Exception as exc:
+        raise RuntimeError(f"Failed to populate field: {exc}") from None
+    return msg
