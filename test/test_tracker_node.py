@@ -68,17 +68,20 @@ def test_bad_parameter_stops_the_tracker_before_it_spins(procs):
     assert_no_traceback(tracker.output)
 
 
-def test_a_bad_rig_file_stops_the_tracker_before_it_spins(procs, tmp_path):
+@pytest.mark.parametrize("exe", ["tracker", "spgd"])
+def test_a_bad_rig_file_stops_a_controller_before_it_spins(procs, tmp_path, exe):
+    """Every controller node reads the rig file (the lines' range it keeps; the tracker's
+    optics): a bad one stops it before it spins, naming the file and the key."""
     rig = tmp_path / "rig.yaml"
     rig.write_text("stage: 5\noptics: {detector: camera}\n")
     for path, says in (
         (rig, f"the rig file {rig}: optics.detector must be one of polarizer, total"),
         (tmp_path / "none.yaml", f"cannot read the rig file {tmp_path / 'none.yaml'}"),
     ):
-        tracker = start(procs, "tracker", "ops_controller_ros", "tracker", f"rig_config:={path}")
-        assert tracker.wait_exit(30) == 2
-        assert f"invalid parameter: rig_config: {says}" in tracker.output, tracker.output
-        assert_no_traceback(tracker.output)
+        node = start(procs, exe, "ops_controller_ros", exe, f"rig_config:={path}")
+        assert node.wait_exit(30) == 2
+        assert f"invalid parameter: rig_config: {says}" in node.output, node.output
+        assert_no_traceback(node.output)
 
 
 @pytest.mark.parametrize(

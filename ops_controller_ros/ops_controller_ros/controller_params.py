@@ -16,3 +16,10 @@ LOG_PERIOD = ParamSpec(
     low=0.1,
     high=3600.0,
 )
+RIG_CONFIG = ParamSpec(
+    "rig_config",
+    "",
+    "rig YAML (docs/rig.md): every controller keeps its set-points inside the lines' range "
+    "it gives, moving them whole optical cycles inwards near a limit; the tracker also takes "
+    "its optics.* and stage (parameters given explicitly override them) ('' : none)",
+)

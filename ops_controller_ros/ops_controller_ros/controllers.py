@@ -18,6 +18,11 @@ A controller may also have ``think() -> bool``: work that can wait until the com
 tracker's deferred knot test); True when it changed the command already given, which
 ``command()`` then returns anew. :func:`next_command` is the in-process loop's way of calling it.
 
+A controller may also have ``move_setpoints(delta_fs)``: its set-points moved by whole optical
+periods (the same interference), with the state built on them following; the loop node calls it
+to keep the set-points inside a rig's range (:mod:`ops_controller_ros.setpoint_range`). SPGD and
+the policy runner have it; the tracker keeps the range itself.
+
 A controller is built from the *nominal* model of the rig (an :class:`~ops_sim_ros.config.OpsConfig`
 holding the wavelength, pulse width, detector, ...), never from the simulator's true state.
 """

@@ -13,6 +13,13 @@ restarted or gone) the command is sent again; a simulator that comes back with a
 restarts the controller from its set-points. A lockstep simulator whose first trace was missed is
 asked for a step at its present set-points.
 
+The set-points stay inside a rig's range (``rig_config``: a rig YAML with a calibration,
+docs/rig.md): a rig refuses a command beyond a line's limits, and the drift carries a lock
+towards one. A command within two optical cycles of a limit is moved whole cycles inwards and the
+controller told (``move_setpoints``, :class:`~ops_controller_ros.setpoint_range.RangeKeeper`); a
+controller that keeps the range itself (the tracker, :attr:`ControllerLoopNode.keeps_own_range`)
+moves its own; and whatever is still beyond the range is clipped, so no such command goes out.
+
 Subclasses declare their own parameters and build the controller (:meth:`build_controller`).
 Only ``rate_hz`` and ``timeout_s`` change live; every other parameter is fixed after start (a
 change is refused with the reason).
@@ -24,6 +31,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from ops_sim_ros.config import SPEED_OF_LIGHT_NM_PER_FS
 from ops_sim_ros.node_params import ParamSpec, declare_all
 from ops_sim_ros.observation import pulse_energies_from_trace
 from ops_sim_ros.rig_params import RIG_PARAMS, rig_config, rig_values
@@ -48,6 +56,8 @@ from std_msgs.msg import Float32, Float32MultiArray
 
 from . import controller_params, loop_status
 from .command_tracker import CommandTracker, StepPairing, sequence_number, steps_between
+from .rig_optics import read_rig
+from .setpoint_range import MARGIN_CYCLES, RangeKeeper
 
 LOOP_PARAMS = [
     ParamSpec(
@@ -62,6 +72,8 @@ LOOP_PARAMS = [
     ParamSpec("seed", -1, "random seed of the controller; -1 draws one", low=-1, high=2**31 - 1),
     controller_params.LOG_PERIOD,
     *loop_status.PARAMS,
+    # the rig YAML: the lines' range every controller keeps (and the tracker's optics)
+    controller_params.RIG_CONFIG,
     # the rig the controller is told of, as the simulator node takes it (issue 30)
     *RIG_PARAMS,
 ]
@@ -71,6 +83,10 @@ LIVE_PARAMS = ("rate_hz", "timeout_s")
 
 class ControllerLoopNode(Node):
     """Closes the loop with the controller a subclass builds (see the module docstring)."""
+
+    #: True: the controller keeps the rig's range itself (built with it, as the tracker is); the
+    #: node then only clips. False: the node moves the commands and tells the controller.
+    keeps_own_range = False
 
     def __init__(self, node_name: str, params: list[ParamSpec]):
         super().__init__(node_name)
@@ -82,6 +98,9 @@ class ControllerLoopNode(Node):
         self.values = v
         rig_config(v)  # a rig make_config refuses stops the node before it spins
         self.rig = rig_values(v)  # the rig told (realism and the figures given)
+        self.rig_model = read_rig(v["rig_config"])  # the rig YAML's model (None: no file)
+        self._range = self._range_keeper()
+        self._range_moves = 0  # moves off a limit logged so far
         self.seed = None if v["seed"] < 0 else v["seed"]
         self._min_period = 1.0 / v["rate_hz"] if v["rate_hz"] > 0 else 0.0
         self._log_period = v["log_period_s"]
@@ -122,6 +141,62 @@ class ControllerLoopNode(Node):
         self.get_logger().info(
             f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)} (rig: {told})"
         )
+
+    def _range_keeper(self) -> RangeKeeper | None:
+        """The keeper of the rig file's set-point range (None without one), said on the log."""
+        rig = self.rig_model
+        if rig is None:
+            return None
+        if rig.setpoint_range_fs is None:
+            self.get_logger().warning(
+                f"rig_config: {rig.path} has no calibration, so no set-point range: a rig "
+                "refuses set-points beyond its limits, and the drift carries a lock there "
+                "(run ops_rig_ros calibrate)"
+            )
+            return None
+        low, high = rig.setpoint_range_fs
+        period = rig.optics["wavelength_nm"] / SPEED_OF_LIGHT_NM_PER_FS
+        keeper = RangeKeeper(low, high, period, MARGIN_CYCLES, rig.reach_fs_per_reading)
+        if self.keeps_own_range:
+            ranges = ", ".join(f"[{a:.1f}, {b:.1f}]" for a, b in zip(low, high, strict=True))
+            line = (
+                f"set-point range in force (from {rig.path}), fs: {ranges}; the controller "
+                f"moves a set-point within {MARGIN_CYCLES:g} cycles of a limit whole cycles "
+                "inwards, and a command beyond the range is clipped"
+            )
+        else:
+            line = f"{keeper.describe()} (from {rig.path})"
+        self.get_logger().info(line)
+        return keeper
+
+    def _in_range(self, command: np.ndarray) -> np.ndarray:
+        """``command`` kept inside the rig's range (see the module docstring), the moves and
+        clips said on the log (throttled)."""
+        keeper = self._range
+        clipped = keeper.clipped
+        if self.keeps_own_range:
+            command = keeper.clip(command)
+            moves = int(getattr(self.ctrl, "range_moves", 0))
+            how = "moved by the controller"
+        else:
+            command = keeper.keep(self.ctrl, command)
+            moves = keeper.moves
+            periods = " ".join(f"{k:+d}" for k in keeper.last_move) if moves else ""
+            how = f"moved by {periods} periods of {keeper.period_fs:.3f} fs"
+        if moves > self._range_moves:
+            self._range_moves = moves
+            self.get_logger().info(
+                f"set-points near a limit of the rig's range {how} (the same interference; "
+                f"{moves} stage moves so far)",
+                throttle_duration_sec=5.0,
+            )
+        if keeper.clipped > clipped:
+            self.get_logger().warning(
+                f"a command beyond the rig's set-point range was clipped into it "
+                f"({keeper.clipped} so far)",
+                throttle_duration_sec=5.0,
+            )
+        return command
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Apply a validated change of rate_hz or timeout_s (declare_all refused the rest)."""
@@ -166,7 +241,10 @@ class ControllerLoopNode(Node):
 
     # ------------------------------------------------------------------ loop
     def _send(self):
-        command = self._commands.sent(self.ctrl.command(), time.monotonic())
+        command = self.ctrl.command()
+        if self._range is not None:
+            command = self._in_range(command)
+        command = self._commands.sent(command, time.monotonic())
         if not self._commands.resent:
             self._command_step = None
         self._pub_cmd.publish(float_array_msg(command))
@@ -177,11 +255,27 @@ class ControllerLoopNode(Node):
             self.get_logger().warning(
                 f"simulator now has {stage} stages (was {self.ctrl.stage}): restarting"
             )
-        self.ctrl = self.build_controller(self._delays, self._trace[1])
+        self.ctrl = self._build(self._delays, self._trace[1])
         if self.ctrl is None:
             return
+        self._range_moves = 0  # the new controller's moves
+        if self._range is not None:
+            self._range.moves = 0
         self.get_logger().info(f"simulator found: {stage} stages; closing the loop")
         self._send()
+
+    def _build(self, delays: np.ndarray, samples_per_slot: int):
+        """The subclass's controller, unless the rig file says another stage (its range is per
+        stage: the node does not control such a rig)."""
+        rig = self.rig_model
+        if rig is not None and delays.size != rig.stage:
+            self.get_logger().error(
+                f"the rig publishes {delays.size} stages, its file "
+                f"({self.values['rig_config']}) says {rig.stage}: not controlling it",
+                throttle_duration_sec=5.0,
+            )
+            return None
+        return self.build_controller(delays, samples_per_slot)
 
     def _start_if_found(self) -> bool:
         """(Re)start when set-points and trace agree on a stage other than the controller's

@@ -56,17 +56,39 @@ class PolicyController:
         self.stage = int(np.asarray(setpoints_fs).size)
         self._max_step_fs = float(max_step_fs)
         self._command = np.asarray(setpoints_fs, dtype=np.float64).copy()
+        # The whole periods (fs) the node moved the set-points by (move_setpoints), which the
+        # policy is not shown: it observes the set-points (and applied delays) less these.
+        self._moved = np.zeros(self.stage)
         self.last_power = float("nan")
 
     def command(self) -> np.ndarray:
         return self._command.copy()
+
+    @property
+    def moved_fs(self) -> np.ndarray:
+        """The whole periods (fs, per stage) the set-points were moved by so far."""
+        return self._moved.copy()
+
+    def move_setpoints(self, delta_fs) -> None:
+        """Move the set-points by ``delta_fs`` (whole optical periods: the node keeps them
+        inside a rig's range, :mod:`ops_controller_ros.setpoint_range`). The policy acts by
+        increments on the set-points it commanded: those move. The interference is the same
+        there, and the policy is not told: it observes its set-points less the moves, so its
+        observations and memory read as if nothing had moved (a jump of a cycle in its history
+        is nothing it was trained on)."""
+        delta = np.asarray(delta_fs, dtype=np.float64).reshape(self.stage)
+        self._command = self._command + delta
+        self._moved = self._moved + delta
 
     def observe(
         self, power: float, pulse_energies, steps: int = 1, applied=None, command_age=None
     ) -> None:
         """A reading of the last command (``steps``: the loop's count, unused: a policy acts
         on its observation alone)."""
-        action = self.runner.act(pulse_energies, power, self._command, applied)
+        seen = self._command - self._moved
+        if applied is not None:
+            applied = np.asarray(applied, dtype=np.float64) - self._moved
+        action = self.runner.act(pulse_energies, power, seen, applied)
         self._command = self._command + np.asarray(action, dtype=np.float64) * self._max_step_fs
         self.last_power = float(power)
 

@@ -1,5 +1,10 @@
 """The tracker's nominal optics from a rig YAML (``-p rig_config:=RIG.yaml``, docs/rig.md).
 
+Every controller node reads the file (:func:`read_rig`, in
+:class:`~ops_controller_ros.loop_node.ControllerLoopNode`) for the lines' range, which it keeps
+its set-points inside (:mod:`ops_controller_ros.setpoint_range`); the tracker also takes its
+optics from it.
+
 The rig YAML that ``ops_rig_ros calibrate`` wrote tells the stacker's stage and nominal optics
 (``optics.wavelength_nm``, ``optics.pulse_fwhm_fs``, ``optics.detector``), read here with the
 rig package's own checks (:mod:`ops_sim_ros.rig_file`, shared: this package does not depend on
@@ -16,17 +21,9 @@ than one reading leaves readings half-way, far below the stack (simulated lab, N
 from __future__ import annotations
 
 from ops_sim_ros.config import SPEED_OF_LIGHT_NM_PER_FS
-from ops_sim_ros.node_params import ParamSpec
 from ops_sim_ros.rig_file import RigFileError, RigModel, read_rig_model
 from ops_sim_ros.ros_interface import ParameterError
 from rclpy.node import Node
-
-RIG_CONFIG = ParamSpec(
-    "rig_config",
-    "",
-    "rig YAML whose optics.* (and stage) the nominal model takes ('' : none; "
-    "parameters given explicitly override it)",
-)
 
 
 def given_parameters(node: Node) -> set[str]:
@@ -37,19 +34,30 @@ def given_parameters(node: Node) -> set[str]:
     return set(getattr(node, "_parameter_overrides", {}))
 
 
-def nominal_optics(values: dict, given: set[str], path: str) -> tuple[dict, RigModel | None, str]:
+def read_rig(path: str) -> RigModel | None:
+    """The rig YAML at ``path`` (the ``rig_config`` parameter; '' : None), read with the rig
+    package's checks; ParameterError names the parameter, the file and the key."""
+    if not path:
+        return None
+    try:
+        return read_rig_model(path)
+    except RigFileError as exc:
+        raise ParameterError(f"rig_config: {exc}") from None
+
+
+def nominal_optics(
+    values: dict, given: set[str], path: str, rig: RigModel | None = None
+) -> tuple[dict, RigModel | None, str]:
     """The optics (wavelength_nm, pulse_fwhm_fs, detector) of the parameter ``values``, with
-    those not ``given`` taken from the rig YAML at ``path`` ('' : none); the file's model (None
-    without a file) and a line saying where each came from. ParameterError names the file and
-    the key."""
+    those not ``given`` taken from the rig YAML at ``path`` ('' : none; ``rig``: that file
+    already read, :func:`read_rig`); the file's model (None without a file) and a line saying
+    where each came from. ParameterError names the file and the key."""
     names = ("wavelength_nm", "pulse_fwhm_fs", "detector")
     optics = {k: values[k] for k in names}
     if not path:
         return optics, None, ""
-    try:
-        rig = read_rig_model(path)
-    except RigFileError as exc:
-        raise ParameterError(f"rig_config: {exc}") from None
+    if rig is None:
+        rig = read_rig(path)
     taken = [k for k in names if k not in given]
     optics.update({k: rig.optics[k] for k in taken})
     source = ", ".join(f"{k}={optics[k]}" for k in names)

@@ -142,6 +142,21 @@ class SpgdPid:
         self._pair = 0
         self._pairs: dict = {}  # (epoch, pair) -> [signs, set-points, J+ or None]
 
+    def move_setpoints(self, delta_fs) -> None:
+        """Move the set-points by ``delta_fs`` (whole optical periods: the loop node keeps them
+        inside a rig's range, :mod:`ops_controller_ros.setpoint_range`). The interference is
+        the same there, so everything built on the set-points follows: the dither pair under
+        way, a walk to a restart point, the best plateau a restart leaves from, the commands in
+        flight under a latency. The PID state (velocity, integral) is kept."""
+        d = np.asarray(delta_fs, dtype=np.float64).reshape(self.stage)
+        self.setpoints_fs = self.setpoints_fs + d
+        self._walk = [w + d for w in self._walk]
+        self._best = (self._best[0], self._best[1] + d)
+        if self._given is not None:
+            self._given = self._given + d
+        for pair in self._pairs.values():
+            pair[1] = pair[1] + d
+
     # ------------------------------------------------------------------ restarts
     @property
     def restarting(self) -> bool:

@@ -22,7 +22,6 @@ from std_msgs.msg import Float32MultiArray
 
 from .loop_node import ControllerLoopNode
 from .rig_optics import (
-    RIG_CONFIG,
     given_parameters,
     hop_every_on_rig,
     nominal_optics,
@@ -47,22 +46,24 @@ MODEL_PARAMS = [
         *OPTICS_LIMITS["pulse_fwhm_fs"],
     ),
     ParamSpec("detector", OPTICS_DEFAULTS["detector"], "what the detector sees", choices=DETECTORS),
-    RIG_CONFIG,
 ]
 # The tracker's own parameters are generated from TrackerParams' declarations (one default set
 # with evaluate; the node adds only real-time caps, docs/tracker.md); the rig's are every
-# controller node's (ControllerLoopNode, ops_sim_ros.rig_params).
+# controller node's (ControllerLoopNode, ops_sim_ros.rig_params), and so is rig_config.
 PARAMS = [*MODEL_PARAMS, *node_param_specs()]
 
 
 class TrackerNode(ControllerLoopNode):
+    # built with the rig's range: the tracker moves its set-points off a limit itself
+    # (tracker/period.py, in its model's cycles, with the hops' bookkeeping)
+    keeps_own_range = True
+
     def __init__(self):
         super().__init__("ops_tracker", PARAMS)
         # The optics: parameters given explicitly, else the rig YAML's, else the defaults.
         given = given_parameters(self)
-        self._model, rig, note = nominal_optics(self.values, given, self.values["rig_config"])
-        self._rig = rig
-        self._rig_stage = rig.stage if rig is not None else None
+        path = self.values["rig_config"]
+        self._model, rig, note = nominal_optics(self.values, given, path, self.rig_model)
         node_values = {k: self.values[k] for k in NODE_FIELDS}
         node_values["hop_every"], hop_note = hop_every_on_rig(
             node_values["hop_every"],
@@ -115,13 +116,7 @@ class TrackerNode(ControllerLoopNode):
         self._pub_diag.publish(msg)
 
     def build_controller(self, delays, samples_per_slot):
-        if self._rig_stage is not None and delays.size != self._rig_stage:
-            self.get_logger().error(
-                f"the rig publishes {delays.size} stages, its file "
-                f"({self.values['rig_config']}) says {self._rig_stage}: not controlling it",
-                throttle_duration_sec=5.0,
-            )
-            return None
+        # (a rig file's other stage is refused by the loop, ControllerLoopNode._build)
         try:
             model = self.nominal_model(
                 stage=delays.size, samples_per_slot=samples_per_slot, **self._model
@@ -129,7 +124,7 @@ class TrackerNode(ControllerLoopNode):
         except ParameterError as exc:
             self.get_logger().error(f"cannot model this simulator: {exc}")
             return None
-        rig = self._rig
+        rig = self.rig_model
         return PhaseTracker(
             model,
             self._params,

@@ -50,7 +50,7 @@ def test_every_controller_node_declares_the_rig_once():
     from ops_controller_ros.loop_node import LOOP_PARAMS
 
     loop = {spec.name for spec in LOOP_PARAMS}
-    assert {"realism", *RIG_PARAM_KEYS} <= loop
+    assert {"realism", *RIG_PARAM_KEYS, "rig_config"} <= loop  # the rig file: every node's
     for params in (TRACKER_PARAMS, SPGD_PARAMS):
         assert not loop & {spec.name for spec in params}  # not declared a second time
 

@@ -6,10 +6,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
 from ops_sim_ros.config import make_config
-from ops_sim_ros.simulation import BatchedSimulation
+from range_loop import drive, inside
 
 
 def test_a_lock_drifting_to_a_limit_moves_whole_cycles_inwards_and_holds():
@@ -20,20 +19,11 @@ def test_a_lock_drifting_to_a_limit_moves_whole_cycles_inwards_and_holds():
     low, high = np.full(5, -12.0), np.full(5, 10.0)
     for seed in (81, 82):
         config = make_config(5, "hard", "test")
-        sim = BatchedSimulation(config, 1, seed=seed)
         params = replace(TrackerParams(), hop_every=0)
         tracker = PhaseTracker(
             config, params, seed=seed, setpoint_range_fs=(low, high), reach_fs=6.4
         )
-        sim.reset(seed=seed)
-        commands, powers = [], []
-        for _ in range(1500):
-            command = next_command(tracker)
-            commands.append(command)
-            res = sim.step_setpoints(command[None])
-            tracker.observe(float(res.power[0]), res.pulse_energies[0])
-            powers.append(float(res.power[0]))
-        commands = np.array(commands)
-        assert np.all(commands >= low - 1e-9) and np.all(commands <= high + 1e-9)
+        commands, powers = drive(tracker, config, seed, 1500)
+        assert inside(commands, low, high)
         assert tracker.range_moves > 0, seed
-        assert np.mean(np.array(powers[200:]) >= 0.95) >= 0.97, seed
+        assert np.mean(powers[200:] >= 0.95) >= 0.97, seed

@@ -15,12 +15,15 @@ from collections import deque
 
 import numpy as np
 
+from ..setpoint_range import MARGIN_CYCLES, inward_periods, periods_per_reading
+
 MAX_HOP_RATIO = 0.05  # largest period error one fit may report (relative)
 HOP_POWER = 0.98  # a whole-cycle move waits for a reading at least this good
 HOP_MAX_DRIFT = 0.005  # ... and for a stage drifting slower than this (cycles per step)
 HOP_GAIN_MOVES = 20.0  # the period correction's gain halves after this many moves ...
 HOP_GAIN_FLOOR = 0.05  # ... and falls no lower than this share of hop_gain
-RANGE_MARGIN_CYCLES = 2.0  # a set-point this near its line's limit moves whole cycles inwards
+# a set-point this near its line's limit moves whole cycles inwards (one rule for every controller)
+RANGE_MARGIN_CYCLES = MARGIN_CYCLES
 
 
 class PeriodCalibration:
@@ -52,19 +55,23 @@ class PeriodCalibration:
     def _range_move(self):
         """Whole cycles off a set-point near its line's limit: the drift carries a lock towards
         it, and a rig refuses a command beyond it (simulated lab, hard, 25 Hz: a stage at its
-        0 V limit after ~4 minutes, and every later command refused). The stage nearest its
-        limit moves inwards by as many whole cycles as its line makes in one reading (at least
-        one, at most to the middle of its range); returns (stage, cycles) or None. Not a hop:
-        the cycles are the model's, and the lock stays where the model is right."""
-        lo, hi = (r / self.period_fs for r in self.range_fs)
-        room = np.minimum(self._base - lo, hi - self._base)
-        j = int(np.argmin(room))
-        if room[j] >= RANGE_MARGIN_CYCLES or hi[j] - lo[j] < 2 * RANGE_MARGIN_CYCLES + 1:
+        0 V limit after ~4 minutes, and every later command refused). Of the stages within
+        ``RANGE_MARGIN_CYCLES`` of a limit, the one nearest its limit moves inwards, towards the
+        middle of its range, by at most as many whole cycles as its line makes in one reading
+        (at least one): the rule every controller keeps its range by
+        (:func:`~ops_controller_ros.setpoint_range.inward_periods`). Returns (stage, cycles) or
+        None. Not a hop: the cycles are the model's, and the lock stays where the model is
+        right."""
+        lo, hi = self.range_fs
+        most = periods_per_reading(self.reach_fs, self.period_fs)
+        periods = inward_periods(
+            self._base * self.period_fs, lo, hi, self.period_fs, RANGE_MARGIN_CYCLES, most
+        )
+        if not periods.any():
             return None
-        middle = 0.5 * (lo[j] + hi[j])
-        most = np.inf if self.reach_fs is None else self.reach_fs / self.period_fs
-        k = int(max(1.0, min(np.floor(most), np.floor(abs(self._base[j] - middle)))))
-        k = -k if self._base[j] > middle else k
+        room = np.minimum(self._base - lo / self.period_fs, hi / self.period_fs - self._base)
+        j = int(np.argmin(np.where(periods != 0, room, np.inf)))
+        k = int(periods[j])
         self._base[j] += k
         self.range_moves += 1
         return j, k
