@@ -99,7 +99,7 @@ class TrackerParams:
     # for it is the detector's alone, while the repeated first reading also sees the delay lines
     # move between the two steps (extreme mode's drift reads as 0.002-0.005 there).
     told_noisy_threshold: float = _declare(
-        0.0015,
+        0.0001,
         "assumed or told noise std from which the detector counts as noisy",
         0.0,
         low_open=True,
@@ -136,7 +136,7 @@ class TrackerParams:
         0.004, "how far one window may move the drift estimate (std)", 0.0, low_open=True
     )
     noisy_drift_prior_cycles: float = _declare(
-        0.002, "... on a noisy detector (docs/tracker.md)", 0.0, low_open=True
+        0.001, "... on a noisy detector (docs/tracker.md)", 0.0, low_open=True
     )
     # The fastest drift the tracker believes, cycles per step (a fit beyond is clipped): on a
     # periodic landscape a drift near a cycle per step reads like none (seen: a stage's drift

@@ -36,7 +36,7 @@ class PeriodCalibration:
         # A told source noise (.weights) counts as noisy here: a move's period fit leans on the
         # stacked slot, which that noise moves (hard, 1 % pulse noise: a move ended an episode
         # at 0.02; realism sweep, 100 episodes)
-        noisy = p.detector_noise >= p.told_noisy_threshold or self._weights is not None
+        noisy = self._told_noisy() or self._weights is not None
         every = p.noisy_hop_every if noisy else p.hop_every
         if not every or self._bad_fits or self._knot_job is not None or self._tick < self._hop_next:
             return None

@@ -103,10 +103,19 @@ def _run_cell(cell: dict, root: Path) -> dict:
         done = subprocess.run(cmd, capture_output=True, text=True, stdin=subprocess.DEVNULL)
         if done.returncode != 0:
             raise RuntimeError(f"{cell['name']}: evaluate failed:\n{done.stderr[-2000:]}")
-    ev = json.loads((out / "evaluation.json").read_text())["splits"]["test"]
+    row = _stored_row(cell, root)
+    figures = f"{row['mean']:.4f} (worst {row['worst']:.4f})"
+    print(f"[realism_sweep] {cell['name']}: {figures}", flush=True)
+    return row
+
+
+def _stored_row(cell: dict, root: Path) -> dict | None:
+    """The figures of a cell stored under ``root`` (None: not stored)."""
+    path = root / "cells" / cell["name"] / "evaluation.json"
+    if not path.exists():
+        return None
+    ev = json.loads(path.read_text())["splits"]["test"]
     finals = ev["final_power_per_episode"]
-    print(f"[realism_sweep] {cell['name']}: {ev['final_power_mean']:.4f} "
-          f"(worst {min(finals):.4f})", flush=True)  # fmt: skip
     return {
         **{k: cell[k] for k in ("subject", "mode", "case")},
         "mean": ev["final_power_mean"],
@@ -114,6 +123,20 @@ def _run_cell(cell: dict, root: Path) -> dict:
         "below_0_8": sum(f < 0.8 for f in finals),
         "episodes": len(finals),
     }
+
+
+def stored_rows(args, todo: list[dict], root: Path) -> list[dict]:
+    """Every stored cell of the whole sweep (every case of the default subjects and modes and
+    of this run's), in the sweep's order: the page and the figure show all of them, whichever
+    part a run (re)made."""
+    whole = build_parser().parse_args(["--seeds", *map(str, args.seeds)])
+    whole.episodes = args.episodes
+    whole.modes = list(dict.fromkeys([*whole.modes, *args.modes]))
+    whole.subjects = list(dict.fromkeys([*whole.subjects, *args.subjects]))
+    plan = {c["name"]: c for c in cells(whole)}
+    plan.update({c["name"]: c for c in todo if c["name"] not in plan})
+    rows = [_stored_row(c, root) for c in plan.values()]
+    return [r for r in rows if r is not None]
 
 
 def table(rows: list[dict]) -> str:
@@ -134,7 +157,7 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def write_page(root: Path, rows: list[dict], argv: list[str], figure: Path) -> None:
+def write_page(root: Path, rows: list[dict], figure: Path) -> None:
     episodes = rows[0]["episodes"] if rows else 0
     rel = Path("..", "..", *figure.parts[1:]) if figure.parts[:1] == ("docs",) else figure
     text = (
@@ -143,7 +166,10 @@ def write_page(root: Path, rows: list[dict], argv: list[str], figure: Path) -> N
         f"split, {episodes} episodes per cell on held-out seeds. Each controller is told of the "
         "rig (`evaluate --rig` / `--realism`); a learned model knows only its training "
         'environment. Cases are described in docs/physics.md, "Rig imperfections".\n\n'
-        f"Command: `ros2 run ops_gym_bridge realism_sweep {' '.join(argv)}`\n\n"
+        "Command: `ros2 run ops_gym_bridge realism_sweep` (every cell; a cell stored under "
+        "`cells/` is not run again: delete its folder to re-run it, or name a part with "
+        "`--subjects`, `--modes`, `--cases`; the page and the figure always show every stored "
+        "cell)\n\n"
         f"{table(rows)}\n\n![realism sweep]({rel})\n"
     )
     (root / "index.md").write_text(text)
@@ -215,11 +241,12 @@ def run(argv: list[str] | None = None) -> int:
     root = Path(args.out)
     print(f"[realism_sweep] {len(todo)} cells, {args.jobs} at a time, into {root}", flush=True)
     with ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
-        rows = list(pool.map(lambda c: _run_cell(c, root), todo))
+        list(pool.map(lambda c: _run_cell(c, root), todo))
+    rows = stored_rows(args, todo, root)
     (root / "summary.json").write_text(json.dumps({"command_line": raw, "cells": rows}, indent=1))
     figure = Path(args.figure)
     plot(rows, figure)
-    write_page(root, rows, raw, figure)
+    write_page(root, rows, figure)
     print(table(rows))
     print(f"[realism_sweep] wrote {root / 'index.md'}, {root / 'summary.json'}, {figure}")
     return 0
