@@ -11,6 +11,10 @@ acquires, another holds: ``ops_controller_ros.policy_switch``) runs both on ever
 logs which one acts. A model whose metadata has a ``reacquire`` entry runs inside the
 re-acquiring watchdog (``ops_controller_ros.reacquire``: a stack lost for ``patience`` readings
 is kicked to a fresh point), as ``evaluate`` runs it; the progress line counts its kicks.
+``hold_steps`` (k > 1, or 0: the told ``latency_steps`` + 1) makes the policy decide on one
+reading in k and hold its command on the others, seeing only the readings it decides on
+(``ops_controller_ros.policy_hold``, as ``evaluate --hold-steps`` runs it): a model trained
+without latency on a rig with one.
 
 The loop is every controller node's (:class:`~ops_controller_ros.loop_node.ControllerLoopNode`):
 readings paired with their command and their own step's trace by sequence number, re-sends, the
@@ -30,6 +34,15 @@ from ops_sim_ros.rig_params import RIG_PARAM_KEYS
 from ops_sim_ros.ros_interface import NodeFatalError, ParameterError, run_node
 
 from .loop_node import ControllerLoopNode
+from .policy_hold import (
+    HOLD_STEPS,
+    HOLD_STEPS_AUTO,
+    HOLD_STEPS_DEFAULT,
+    HOLD_STEPS_HELP,
+    HOLD_STEPS_MAX,
+    HeldRunner,
+    resolve_hold_steps,
+)
 from .policy_io import PolicyLoadError, check_observation, check_stage, load_policy
 from .policy_switch import SwitchingRunner, make_runner
 from .reacquire import ReacquireWatchdog
@@ -42,6 +55,15 @@ PARAMS = [
         "observation set the model was trained on: rig (measurable on a real stacker) or "
         "authors (needs the simulator's ops/delays_actual oracle)",
         choices=OBSERVATION_SETS,
+        read_only=True,
+    ),
+    ParamSpec(
+        HOLD_STEPS,
+        HOLD_STEPS_DEFAULT,
+        HOLD_STEPS_HELP,
+        low=1,
+        high=HOLD_STEPS_MAX,
+        special=(HOLD_STEPS_AUTO,),
         read_only=True,
     ),
 ]
@@ -93,7 +115,7 @@ class PolicyController:
         self.last_power = float(power)
 
 
-def _load(model: str, observation: str):
+def _load(model: str, observation: str, hold_steps: int = 1):
     if not model:
         raise ParameterError(
             "model must be the path of a trained model (the training output directory or "
@@ -101,7 +123,7 @@ def _load(model: str, observation: str):
         )
     try:
         policy = load_policy(model)
-        runner = make_runner(policy)
+        runner = make_runner(policy, hold_steps=hold_steps)
         check_observation(policy.metadata, observation, "-p observation:=")
     except PolicyLoadError as exc:
         raise ParameterError(f"model: {exc}") from None
@@ -111,12 +133,20 @@ def _load(model: str, observation: str):
 class PolicyNode(ControllerLoopNode):
     def __init__(self):
         super().__init__("ops_policy", PARAMS)
-        policy, runner = _load(self.values["model"], self.values["observation"])
+        latency = self.nominal_model().latency_steps  # the told rig's (any stage)
+        hold = resolve_hold_steps(self.values[HOLD_STEPS], latency)
+        policy, runner = _load(self.values["model"], self.values["observation"], hold)
         self._policy, self._runner = policy, runner
         self._check_rig(policy)
         if runner.spec.needs_applied_delays:
             self.use_applied_delays()
-        inner = runner.runner if isinstance(runner, ReacquireWatchdog) else runner
+        if isinstance(runner, HeldRunner):
+            self.get_logger().info(
+                f"the policy decides on one reading in {hold} and holds its command on the "
+                f"others ({HOLD_STEPS}={self.values[HOLD_STEPS]}, told latency_steps={latency})"
+            )
+        inner = runner.runner if isinstance(runner, HeldRunner) else runner
+        inner = inner.runner if isinstance(inner, ReacquireWatchdog) else inner
         if isinstance(inner, SwitchingRunner):
             self.get_logger().info(
                 f"switching model: {inner.acquire.policy.path} acquires, the model in "
@@ -170,6 +200,9 @@ class PolicyNode(ControllerLoopNode):
     def progress_note(self) -> str:
         r = self._runner
         notes = []
+        if isinstance(r, HeldRunner):
+            notes.append(f"{r.decisions} decisions")
+            r = r.runner
         if isinstance(r, ReacquireWatchdog):
             notes.append(f"{r.kicks} re-acquiring kicks" + (", kicking" if r.kicking else ""))
             r = r.runner

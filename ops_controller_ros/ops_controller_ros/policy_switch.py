@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .policy_hold import HeldRunner, check_hold_steps
 from .policy_io import (
     METADATA_FILE,
     MODEL_FILE,
@@ -204,17 +205,22 @@ def check_pair(hold: LoadedPolicy, acquire: LoadedPolicy) -> None:
             )
 
 
-def make_runner(loaded: LoadedPolicy, num_envs: int | None = None):
+def make_runner(loaded: LoadedPolicy, num_envs: int | None = None, hold_steps: int = 1):
     """The runner of a loaded model directory: a :class:`SwitchingRunner` when its metadata has
     a ``switch`` entry (the acquiring policy loaded from inside it), else a PolicyRunner; either
     wrapped in a :class:`~ops_controller_ros.reacquire.ReacquireWatchdog` when the metadata has
-    a ``reacquire`` entry."""
+    a ``reacquire`` entry. ``hold_steps`` > 1 (resolved: not 0, auto): all of it inside a
+    :class:`~ops_controller_ros.policy_hold.HeldRunner`, deciding on one reading in that many."""
     runner = _make_policy_runner(loaded, num_envs)
     try:
         watchdog = watchdog_params_of(loaded.metadata)
     except (TypeError, ValueError) as exc:
         raise PolicyLoadError(f"metadata malformed: {loaded.path / METADATA_FILE}: {exc}") from None
-    return runner if watchdog is None else ReacquireWatchdog(runner, watchdog, num_envs)
+    if watchdog is not None:
+        runner = ReacquireWatchdog(runner, watchdog, num_envs)
+    if check_hold_steps(hold_steps) == 1:
+        return runner
+    return HeldRunner(runner, hold_steps, num_envs)
 
 
 def _make_policy_runner(loaded: LoadedPolicy, num_envs: int | None):

@@ -20,6 +20,7 @@ the model's is refused with a clear error.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import sys
@@ -28,6 +29,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ops_controller_ros.policy_hold import (
+    HOLD_STEPS_AUTO,
+    HOLD_STEPS_MAX,
+    check_hold_steps,
+    resolve_hold_steps,
+)
 from ops_sim_ros.config import SPLITS, make_config
 from ops_sim_ros.observation import OBSERVATION_SETS
 from ops_sim_ros.threads import limit_blas_threads
@@ -120,6 +127,18 @@ def build_parser():
     )
     cli_args.add_rig_arguments(p, "the controller")
     p.add_argument(
+        "--hold-steps",
+        type=hold_steps_type,
+        default=1,
+        metavar="K",
+        help="a model's readings per decision: it acts on one reading in K and holds its "
+        "command (the same set-points) on the others, seeing only the readings it acts on, so "
+        "a model trained without latency runs on a rig with L steps of it at K = L + 1; 1: "
+        "every reading; auto (or 0): the told latency_steps + 1 (--realism / --rig; --env is "
+        f"not told); 1 to {HOLD_STEPS_MAX} (ops_controller_ros.policy_hold; the policy node's "
+        "hold_steps)",
+    )
+    p.add_argument(
         "--observation",
         choices=OBSERVATION_SETS,
         help="observation set to run the model on: a model runs only on the set it was trained "
@@ -129,6 +148,19 @@ def build_parser():
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (0: default)")
     p.add_argument("--quiet", action="store_true", help="print only the summary table")
     return p
+
+
+def hold_steps_type(text: str) -> int:
+    """An argparse ``type`` for ``--hold-steps``: ``auto`` (0) or policy_hold's range."""
+    if text.strip().lower() == "auto":
+        return HOLD_STEPS_AUTO
+    try:
+        return check_hold_steps(int(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--hold-steps must be auto (or 0: the told latency_steps + 1) or an integer from 1 "
+            f"to {HOLD_STEPS_MAX} (got {text!r})"
+        ) from None
 
 
 def _parse(items: list[str], what: str) -> dict[str, Any]:
@@ -161,6 +193,11 @@ def resolve_subject(args) -> Subject:
                 "--observation chooses a model's observation set; a controller reads the "
                 "detector only"
             )
+        if args.hold_steps != 1:
+            raise EvaluationError(
+                "--hold-steps holds a learned policy's decisions; a controller is told the "
+                "latency instead (--rig latency_steps=L)"
+            )
         params = _parse(args.controller_param, "--controller-param")
         subject = Subject(
             name=args.controller,
@@ -184,7 +221,7 @@ def resolve_subject(args) -> Subject:
         except PolicyLoadError as exc:
             raise EvaluationError(str(exc)) from None
     trained_detector = (loaded.metadata.get("config") or {}).get("detector", "polarizer")
-    return Subject(
+    subject = Subject(
         name=loaded.algo,
         stage=stage,
         mode=args.mode or loaded.mode,
@@ -201,6 +238,26 @@ def resolve_subject(args) -> Subject:
             "trained_timesteps": loaded.metadata.get("timesteps"),
         },
     )
+    return _with_hold(subject, args)
+
+
+def _with_hold(subject: Subject, args) -> Subject:
+    """``subject`` deciding on one reading in ``--hold-steps`` (0, auto: the told latency + 1,
+    resolved against the rig it is told of); said in the results (``hold_steps``)."""
+    if args.hold_steps == 1:
+        return subject
+    try:
+        latency = subject.nominal_config("train", 1).latency_steps
+        hold = resolve_hold_steps(args.hold_steps, latency)
+    except ValueError as exc:
+        raise EvaluationError(str(exc)) from None
+    if args.record and hold != 1:
+        raise EvaluationError(
+            "--record records the bare policy's episodes; leave out --hold-steps to record"
+        )
+    subject.hold_steps = hold
+    subject.meta["hold_steps"] = hold
+    return subject
 
 
 def _check_controller(subject: Subject) -> None:

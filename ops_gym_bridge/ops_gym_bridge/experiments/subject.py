@@ -42,6 +42,9 @@ class Subject:
     #: A policy runs on the controllers' very episodes (one env per episode, the same initial
     #: errors and noise draws: the benchmark) instead of one batched vector env (``evaluate``).
     paired: bool = False
+    #: Readings per decision of a policy (resolved: >= 1; ``evaluate --hold-steps``): k > 1 runs
+    #: it through :class:`~ops_controller_ros.policy_hold.HeldRunner`, as the policy node does.
+    hold_steps: int = 1
 
     def with_mode(self, mode: str) -> Subject:
         """The same subject on another mode's environment (the benchmark's transfer)."""
@@ -78,8 +81,9 @@ class Subject:
             )
         from ops_controller_ros.policy_switch import make_runner, needs_runner
 
-        if needs_runner(self.policy):  # a switching model or a re-acquiring watchdog
-            return rollout_runner(make_runner(self.policy, episodes), sim, episodes, steps, seed)
+        if needs_runner(self.policy) or self.hold_steps != 1:  # switching, watchdog or held
+            runner = make_runner(self.policy, episodes, hold_steps=self.hold_steps)
+            return rollout_runner(runner, sim, episodes, steps, seed)
         options = self.observation_options()
         return rollout_policy(
             self.policy.predict, sim, episodes, steps, seed, options, paired=self.paired

@@ -60,7 +60,7 @@ class Probe:
         from std_msgs.msg import Float32, Float32MultiArray
 
         self.rclpy = rclpy
-        rclpy.init()
+        rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
         self.node = rclpy.create_node("bench_probe")
         self.pub = self.node.create_publisher(Float32MultiArray, "ops/delay_cmd", QOS_RELIABLE)
         self.got = {"delays": 0, "power": 0}

@@ -101,7 +101,7 @@ def main(argv=None) -> int:
 
     logdir = REPO / "runs" / "bench_continuous_dds"
     logdir.mkdir(parents=True, exist_ok=True)
-    rclpy.init()
+    rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
     runs = []
     try:
         for seed in args.seeds:

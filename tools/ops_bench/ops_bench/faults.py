@@ -53,7 +53,7 @@ def record_main() -> None:
     from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_POWER
     from std_msgs.msg import Float32
 
-    rclpy.init()
+    rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
     node = rclpy.create_node("fault_recorder")
     node.create_subscription(
         Float32,
@@ -76,7 +76,7 @@ def flood_main(rate: float, seconds: float, stage: int) -> None:
     from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DELAY_CMD
     from std_msgs.msg import Float32MultiArray
 
-    rclpy.init()
+    rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
     node = rclpy.create_node("fault_flooder")
     pub = node.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
     msg = Float32MultiArray(data=[0.0] * max(stage - 1, 2))

@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     spgd = ["ros2", "run", "ops_controller_ros", "spgd"]
     extra = [] if args.echo == "none" else [["ros2", "topic", "echo", f"/ops/{args.echo}"]]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    rclpy.init()
+    rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
     try:
         times = []
         for seed in seeds:

@@ -155,7 +155,7 @@ def main(argv=None) -> int:
     from ops_sim_ros.ros_interface import QOS_EVERY_READING, TOPIC_POWER
     from std_msgs.msg import Float32
 
-    rclpy.init()
+    rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
     node = rclpy.create_node("bench_rig_tracker")
     node.create_subscription(
         Float32, TOPIC_POWER, lambda m: power.append((time.monotonic(), m.data)), QOS_EVERY_READING

@@ -71,7 +71,7 @@ def main(argv=None) -> int:
     logdir = local_dds("bench_tracker_dds")
     import rclpy
 
-    rclpy.init()
+    rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
     try:
         times = []
         for seed in range(args.seeds):
