@@ -41,7 +41,7 @@ def test_a_small_sweep_stores_its_cells_resumes_and_writes_table_and_figure(tmp_
     for r in rows.values():
         assert 0.0 <= r["worst"] <= r["mean"] + 1e-6 <= 1.0 + 1e-6 and r["episodes"] == 1
     page = (tmp_path / "sweep" / "index.md").read_text()
-    assert "| latency 2 |" in page and "ros2 run ops_gym_bridge realism_sweep" in page
+    assert "| latency 2 |" in page and "realism_sweep --modes easy" in page
     assert (tmp_path / "fig.png").stat().st_size > 10_000
     cell = tmp_path / "sweep" / "cells" / "spgd_easy_latency_2" / "evaluation.json"
     stamp = cell.stat().st_mtime_ns

@@ -15,6 +15,7 @@ and the figure ``--figure``, and prints the table.
 from __future__ import annotations
 
 import json
+import shlex
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -157,22 +158,30 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def write_page(root: Path, rows: list[dict], figure: Path) -> None:
+def write_page(root: Path, rows: list[dict], argv: list[str], figure: Path) -> None:
     episodes = rows[0]["episodes"] if rows else 0
     rel = Path("..", "..", *figure.parts[1:]) if figure.parts[:1] == ("docs",) else figure
+    command = " ".join(["ros2 run ops_gym_bridge realism_sweep", *map(shlex.quote, argv)])
     text = (
         "# Realism sweep\n\n"
         "Final P_N / P_max, mean over the episodes (worst episode in brackets), N = 5, testing "
         f"split, {episodes} episodes per cell on held-out seeds. Each controller is told of the "
         "rig (`evaluate --rig` / `--realism`); a learned model knows only its training "
         'environment. Cases are described in docs/physics.md, "Rig imperfections".\n\n'
-        "Command: `ros2 run ops_gym_bridge realism_sweep` (every cell; a cell stored under "
-        "`cells/` is not run again: delete its folder to re-run it, or name a part with "
-        "`--subjects`, `--modes`, `--cases`; the page and the figure always show every stored "
-        "cell)\n\n"
+        f"Command (the last run): `{command}`. "
+        "A cell stored under `cells/` is not run again (delete its folder to re-run it), and "
+        "this page and the figure show every stored cell, whichever run made it; "
+        "`ros2 run ops_gym_bridge realism_sweep` alone makes the whole default sweep.\n\n"
         f"{table(rows)}\n\n![realism sweep]({rel})\n"
     )
     (root / "index.md").write_text(text)
+
+
+def _panel_case(panel: tuple, x) -> str:
+    """The case name of value ``x`` on a panel of :data:`PANELS`."""
+    title, key, _, _ = panel
+    case = f"{x}{key}" if key.startswith("-") else f"{key}{x}"
+    return case + "%" if "%" in title else case
 
 
 def plot(rows: list[dict], path: Path) -> None:
@@ -184,21 +193,21 @@ def plot(rows: list[dict], path: Path) -> None:
     modes = list(dict.fromkeys(r["mode"] for r in rows))
     subjects = list(dict.fromkeys(r["subject"] for r in rows))
     by = {(r["subject"], r["mode"], r["case"]): r for r in rows}
+    shown = {r["case"] for r in rows}  # panels with no stored case are left out
+    panels = [pn for pn in PANELS if any(_panel_case(pn, x) in shown for x in pn[2])]
     fig, axes = plt.subplots(
-        len(modes), len(PANELS) + 1, figsize=(3.2 * (len(PANELS) + 1), 3.0 * len(modes)),
+        len(modes), len(panels) + 1, figsize=(max(3.2 * (len(panels) + 1), 6.5), 3.0 * len(modes)),
         squeeze=False, sharey=True,
     )  # fmt: skip
     colors = dict(zip(subjects, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
     for i, mode in enumerate(modes):
         here = [s for s in subjects if any(k[:2] == (s, mode) for k in by)]
-        for j, (title, key, xs, x0) in enumerate(PANELS):
+        for j, panel in enumerate(panels):
+            title, _, xs, x0 = panel
             ax = axes[i, j]
             for s in here:
                 pts = [(x0, by.get((s, mode, "ideal")))]
-                for x in xs:
-                    case = f"{x}{key}" if key.startswith("-") else f"{key}{x}"
-                    case = case + "%" if "%" in title else case
-                    pts.append((x, by.get((s, mode, case))))
+                pts += [(x, by.get((s, mode, _panel_case(panel, x)))) for x in xs]
                 pts = [(x, r) for x, r in pts if r is not None]
                 if not pts:
                     continue
@@ -217,7 +226,8 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.set_xticks(range(len(here)), here, rotation=20, fontsize=7)
         ax.set_title(f"{mode}: lab preset", fontsize=9)
         axes[i, 0].set_ylabel("final P_N / P_max")
-        axes[i, 0].legend(fontsize=7, loc="center right")
+        if panels:
+            axes[i, 0].legend(fontsize=7, loc="center right")
     fig.suptitle(
         "Mean (o, bars) and worst episode (x) against the rig's imperfections", fontsize=10
     )
@@ -246,7 +256,7 @@ def run(argv: list[str] | None = None) -> int:
     (root / "summary.json").write_text(json.dumps({"command_line": raw, "cells": rows}, indent=1))
     figure = Path(args.figure)
     plot(rows, figure)
-    write_page(root, rows, figure)
+    write_page(root, rows, raw, figure)
     print(table(rows))
     print(f"[realism_sweep] wrote {root / 'index.md'}, {root / 'summary.json'}, {figure}")
     return 0
