@@ -1,31 +1,44 @@
 #!/usr/bin/env bash
 # Issue 32, item 4 ("Learning on the rig"): a model for N = 5, hard mode, trained on the `lab`
 # rig with every episode's rig drawn anew (train --rig-randomize lab: latency 0-2 steps and the
-# other imperfections over their ranges; docs/physics.md, "A rig drawn per episode").
+# other imperfections over their ranges; docs/physics.md, "A rig drawn per episode") and with
+# held decisions (train --hold-steps auto: each training step is one decision, held for the
+# episode's latency_steps + 1 simulator steps, as evaluate --hold-steps auto runs a model;
+# docs/physics.md, "Learned policies under latency: held decisions").
 #
 #   scripts/train_lab.sh            # starts the run, or resumes it: run it again every session
-#   MINUTES=50 TOTAL=9000000 OUT=runs/issue32/n5_hard_lab scripts/train_lab.sh
+#   MINUTES=50 TOTAL=9000000 OUT=runs/issue32/n5_hard_lab_held scripts/train_lab.sh
 #
 # Each call trains for MINUTES of wall time (default 50), saves, and exits 0; the next call
-# resumes (replay buffer, step count and DIR/best carry over) until the model has TOTAL steps
-# (default 9,000,000: the 3,000,000 of models/n5_hard it starts from + 6,000,000 on the rig).
-# Every 50,000 steps it evaluates 20 test episodes on the fixed `lab` rig and keeps the best
-# in OUT/best. Then (seconds: a learned model evaluates ~25 episodes a second):
+# resumes (replay buffer, step count, hold and DIR/best carry over) until the model has TOTAL
+# steps (default 9,000,000: the 3,000,000 of models/n5_hard it starts from + 6,000,000 on the
+# rig; with a hold a step is a decision). Every EVAL_FREQ steps (default 50,000) it evaluates
+# EVAL_EPISODES (default 20) test episodes on the fixed `lab` rig, held as the model is (auto:
+# latency 1 + 1 = 2 readings per decision), and keeps the best in OUT/best. Then (seconds: a
+# learned model evaluates ~25 episodes a second; the model's hold is applied by default):
 #
 #   ros2 run ops_gym_bridge evaluate OUT/best --realism lab --mode hard --splits test \
 #       --seeds $(seq 8301 8320) --episodes 5      # 100 episodes, mean and worst; goal >= 0.95
 #
 # INIT=models/n5_hard (default) fine-tunes that model (SAC, fast set, --obs-history 4: at least
-# the largest latency + 1); INIT= (empty) trains from scratch with the same options.
+# the largest latency + 1); INIT= (empty) trains from scratch with the same options. HOLD=auto
+# (default) trains with held decisions; HOLD= (empty) without, as the first run did
+# (OUT=runs/issue32/n5_hard_lab: 0.04 after 320,000 steps, so the default OUT is a new one).
 cd "$(dirname "$0")/.."
 source setup.bash >/dev/null
 set -euo pipefail
-OUT=${OUT:-runs/issue32/n5_hard_lab}
+OUT=${OUT:-runs/issue32/n5_hard_lab_held}
 MINUTES=${MINUTES:-50}
 TOTAL=${TOTAL:-9000000}
 INIT=${INIT-models/n5_hard}
-train() { nice -n 15 ros2 run ops_gym_bridge train "$@" --eval-freq 50000 --eval-episodes 20 \
-    --max-minutes "$MINUTES" --no-progress --torch-threads 1 --out "$OUT"; }
+HOLD=${HOLD-auto}
+EVAL_FREQ=${EVAL_FREQ:-50000}
+EVAL_EPISODES=${EVAL_EPISODES:-20}
+hold=()
+if [ -n "$HOLD" ]; then hold=(--hold-steps "$HOLD"); fi
+train() { nice -n 15 ros2 run ops_gym_bridge train "$@" --eval-freq "$EVAL_FREQ" \
+    --eval-episodes "$EVAL_EPISODES" --max-minutes "$MINUTES" --no-progress --torch-threads 1 \
+    --out "$OUT"; }
 steps_now() { python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['timesteps'])" "$1"; }
 if [ -f "$OUT/model.zip" ]; then
     left=$((TOTAL - $(steps_now "$OUT/metadata.json")))
@@ -33,12 +46,12 @@ if [ -f "$OUT/model.zip" ]; then
         echo "[train_lab] $OUT has its $TOTAL steps; evaluate $OUT/best (see this script's head)"
         exit 0
     fi
-    train --resume --timesteps "$left"
+    train --resume --timesteps "$left"  # the model's hold, rig and ranges
 elif [ -n "$INIT" ]; then
     left=$((TOTAL - $(steps_now "$INIT/metadata.json")))
-    train --init-from "$INIT" --mode hard --realism lab --rig-randomize lab \
+    train --init-from "$INIT" --mode hard --realism lab --rig-randomize lab "${hold[@]}" \
         --hyperparams learning_rate=0.0003 --seed 0 --timesteps "$left"
 else
     train --hyperparams-set fast --stage 5 --mode hard --obs-history 4 --reward nines \
-        --realism lab --rig-randomize lab --seed 0 --timesteps "$TOTAL"
+        --realism lab --rig-randomize lab "${hold[@]}" --seed 0 --timesteps "$TOTAL"
 fi

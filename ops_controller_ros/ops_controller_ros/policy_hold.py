@@ -22,45 +22,42 @@ are the decisions' too): 1 (the default) decides on every reading, as before; k 
 rig the runner is told of (``--realism`` / ``--rig``, the node's ``realism`` /
 ``latency_steps``; a latency it is not told of, ``evaluate --env``, is not counted). Pure numpy:
 no rclpy, no torch.
+
+A model trained with held decisions (``train --hold-steps``: the environments' side of the same
+hold, :mod:`ops_sim_ros.held`, which declares the values) records its ``hold_steps`` in its
+metadata (0 for auto); ``evaluate`` and the policy node hold it so by default
+(:func:`model_hold_steps`; an explicit value overrides, and a model without the entry decides on
+every reading).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from ops_sim_ros.config import LIMITS
+from ops_sim_ros.held import (  # noqa: F401  (declared once, with the env side of the hold)
+    HOLD_STEPS,
+    HOLD_STEPS_AUTO,
+    HOLD_STEPS_DEFAULT,
+    HOLD_STEPS_MAX,
+    check_hold_steps,
+    resolve_hold_steps,
+)
 
-#: The option's name: ``evaluate --hold-steps`` and the policy node's parameter.
-HOLD_STEPS = "hold_steps"
-#: Decide on every reading (no hold): what every runner did before.
-HOLD_STEPS_DEFAULT = 1
-#: Decide on one reading in latency_steps + 1 of the rig the runner is told of.
-HOLD_STEPS_AUTO = 0
-#: The longest hold: the longest latency a rig takes, plus one.
-HOLD_STEPS_MAX = int(LIMITS["latency_steps"][1]) + 1
+#: The policy node's default: the model's own (its metadata's ``hold_steps``; 1 where absent).
+HOLD_STEPS_MODEL = -1
 HOLD_STEPS_HELP = (
     "readings per decision of the policy: it acts on one reading in k and holds its command "
-    "(the same set-points) on the others, seeing only the readings it acts on; 1: every "
-    f"reading; 0 (auto): the told latency_steps + 1; allowed: 0 or 1-{HOLD_STEPS_MAX}"
+    "(the same set-points) on the others, seeing only the readings it acts on; -1 (default): "
+    "the model's (its metadata's hold_steps, written by train --hold-steps; 1 where it has "
+    "none); 1: every reading; 0 (auto): the told latency_steps + 1; allowed: -1, 0 or "
+    f"1-{HOLD_STEPS_MAX}"
 )
 
 
-def check_hold_steps(value) -> int:
-    """``value`` as an int if it is an allowed ``hold_steps`` (0, auto, or 1 to
-    :data:`HOLD_STEPS_MAX`), else ValueError naming the allowed range."""
-    ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
-    if not ok or not (value == HOLD_STEPS_AUTO or 1 <= value <= HOLD_STEPS_MAX):
-        raise ValueError(
-            f"{HOLD_STEPS} must be 0 (auto: the told latency_steps + 1) or an integer from 1 to "
-            f"{HOLD_STEPS_MAX} (got {value!r})"
-        )
-    return int(value)
-
-
-def resolve_hold_steps(value, latency_steps: int) -> int:
-    """The readings per decision ``value`` asks for on a rig told a latency of
-    ``latency_steps``: ``value`` itself, or latency_steps + 1 for 0 (auto)."""
-    value = check_hold_steps(value)
-    return int(latency_steps) + 1 if value == HOLD_STEPS_AUTO else value
+def model_hold_steps(metadata: dict) -> int:
+    """The readings per decision a model was trained with (``hold_steps`` of its metadata,
+    ``train --hold-steps``: 0 for auto; 1 where absent, as every model from before the option);
+    ValueError for a value that is not allowed."""
+    return check_hold_steps(metadata.get(HOLD_STEPS, HOLD_STEPS_DEFAULT))
 
 
 class HeldRunner:

@@ -14,7 +14,8 @@ is kicked to a fresh point), as ``evaluate`` runs it; the progress line counts i
 ``hold_steps`` (k > 1, or 0: the told ``latency_steps`` + 1) makes the policy decide on one
 reading in k and hold its command on the others, seeing only the readings it decides on
 (``ops_controller_ros.policy_hold``, as ``evaluate --hold-steps`` runs it): a model trained
-without latency on a rig with one.
+without latency on a rig with one. By default (-1) the node holds the model as it was trained
+(its metadata's ``hold_steps``, ``train --hold-steps``; every reading for a model without).
 
 The loop is every controller node's (:class:`~ops_controller_ros.loop_node.ControllerLoopNode`):
 readings paired with their command and their own step's trace by sequence number, re-sends, the
@@ -40,7 +41,9 @@ from .policy_hold import (
     HOLD_STEPS_DEFAULT,
     HOLD_STEPS_HELP,
     HOLD_STEPS_MAX,
+    HOLD_STEPS_MODEL,
     HeldRunner,
+    model_hold_steps,
     resolve_hold_steps,
 )
 from .policy_io import PolicyLoadError, check_observation, check_stage, load_policy
@@ -59,11 +62,11 @@ PARAMS = [
     ),
     ParamSpec(
         HOLD_STEPS,
-        HOLD_STEPS_DEFAULT,
+        HOLD_STEPS_MODEL,
         HOLD_STEPS_HELP,
-        low=1,
+        low=HOLD_STEPS_DEFAULT,
         high=HOLD_STEPS_MAX,
-        special=(HOLD_STEPS_AUTO,),
+        special=(HOLD_STEPS_MODEL, HOLD_STEPS_AUTO),
         read_only=True,
     ),
 ]
@@ -115,7 +118,9 @@ class PolicyController:
         self.last_power = float(power)
 
 
-def _load(model: str, observation: str, hold_steps: int = 1):
+def _load(model: str, observation: str, hold_steps: int = 1, latency_steps: int = 0):
+    """(policy, runner, resolved hold) of the model; ``hold_steps`` as the parameter takes it
+    (-1: the model's, 0: auto against ``latency_steps``)."""
     if not model:
         raise ParameterError(
             "model must be the path of a trained model (the training output directory or "
@@ -123,19 +128,22 @@ def _load(model: str, observation: str, hold_steps: int = 1):
         )
     try:
         policy = load_policy(model)
-        runner = make_runner(policy, hold_steps=hold_steps)
+        asked = model_hold_steps(policy.metadata) if hold_steps == HOLD_STEPS_MODEL else hold_steps
+        hold = resolve_hold_steps(asked, latency_steps)
+        runner = make_runner(policy, hold_steps=hold)
         check_observation(policy.metadata, observation, "-p observation:=")
     except PolicyLoadError as exc:
         raise ParameterError(f"model: {exc}") from None
-    return policy, runner
+    return policy, runner, hold
 
 
 class PolicyNode(ControllerLoopNode):
     def __init__(self):
         super().__init__("ops_policy", PARAMS)
         latency = self.nominal_model().latency_steps  # the told rig's (any stage)
-        hold = resolve_hold_steps(self.values[HOLD_STEPS], latency)
-        policy, runner = _load(self.values["model"], self.values["observation"], hold)
+        policy, runner, hold = _load(
+            self.values["model"], self.values["observation"], self.values[HOLD_STEPS], latency
+        )
         self._policy, self._runner = policy, runner
         self._check_rig(policy)
         if runner.spec.needs_applied_delays:
@@ -143,7 +151,13 @@ class PolicyNode(ControllerLoopNode):
         if isinstance(runner, HeldRunner):
             self.get_logger().info(
                 f"the policy decides on one reading in {hold} and holds its command on the "
-                f"others ({HOLD_STEPS}={self.values[HOLD_STEPS]}, told latency_steps={latency})"
+                f"others ({HOLD_STEPS}={self.values[HOLD_STEPS]}"
+                + (
+                    f": the model's, {policy.metadata.get(HOLD_STEPS)}"
+                    if self.values[HOLD_STEPS] == HOLD_STEPS_MODEL
+                    else ""
+                )
+                + f", told latency_steps={latency})"
             )
         inner = runner.runner if isinstance(runner, HeldRunner) else runner
         inner = inner.runner if isinstance(inner, ReacquireWatchdog) else inner

@@ -138,9 +138,10 @@ def test_the_node_declares_hold_steps_once_with_its_range():
     from ops_sim_ros.node_params import check_value
 
     spec = {s.name: s for s in PARAMS}["hold_steps"]
-    assert spec.default == 1 and spec.read_only
+    assert spec.default == -1 and spec.read_only  # -1: the model's (1 where it has none)
     assert check_value(spec, 0) is None and check_value(spec, HOLD_STEPS_MAX) is None
-    assert "hold_steps must be 0 or int in [1, 1001] (got -3)" in check_value(spec, -3)
+    assert check_value(spec, 1) is None and check_value(spec, -1) is None
+    assert "hold_steps must be -1 or 0 or int in [1, 1001] (got -3)" in check_value(spec, -3)
     assert "hold_steps must be" in check_value(spec, HOLD_STEPS_MAX + 1)
 
 
@@ -169,7 +170,7 @@ def test_the_node_holds_as_told_and_refuses_a_bad_value_before_spinning(make_nod
     from ops_sim_ros.ros_interface import ParameterError
 
     model = f"model:={MODELS / 'n3_easy'}"
-    with pytest.raises(ParameterError, match=r"hold_steps must be 0 or int in \[1, 1001\]"):
+    with pytest.raises(ParameterError, match=r"hold_steps must be -1 or 0 or int in \[1, 1001\]"):
         make_node(model, "hold_steps:=-3")
 
 
@@ -177,3 +178,28 @@ def test_the_node_resolves_auto_from_the_told_latency(make_node):
     node = make_node(f"model:={MODELS / 'n3_easy'}", "hold_steps:=0", "realism:=lab")
     assert isinstance(node._runner, HeldRunner) and node._runner.hold_steps == 2  # lab: 1 + 1
     assert "0 decisions" in node.progress_note()
+
+
+@pytest.mark.parametrize(
+    ("entry", "extra", "expected"),
+    [(0, (), 2), (3, (), 3), (0, ("hold_steps:=1",), 1), (None, (), 1)],
+)
+def test_the_node_holds_a_model_as_it_was_trained_unless_told(
+    make_node, tmp_path, entry, extra, expected
+):
+    """A model trained with held decisions (metadata ``hold_steps``, train --hold-steps; 0:
+    auto, here the told latency 1 + 1) is held so by default; an explicit value overrides; a
+    model without the entry decides on every reading."""
+    import json
+    import shutil
+
+    model = tmp_path / "held"
+    model.mkdir()
+    shutil.copy2(MODELS / "n3_easy" / "model.zip", model / "model.zip")
+    meta = json.loads((MODELS / "n3_easy" / "metadata.json").read_text())
+    if entry is not None:
+        meta["hold_steps"] = entry
+    (model / "metadata.json").write_text(json.dumps(meta))
+    node = make_node(f"model:={model}", "realism:=lab", *extra)
+    held = isinstance(node._runner, HeldRunner)
+    assert (node._runner.hold_steps if held else 1) == expected

@@ -181,6 +181,22 @@ def add_rig_randomize_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def hold_steps_type(text: str) -> int:
+    """An argparse ``type`` for ``--hold-steps`` (train, evaluate): ``auto`` (0) or an integer
+    from 1 to ``ops_sim_ros.held.HOLD_STEPS_MAX``."""
+    from ops_sim_ros.held import HOLD_STEPS_AUTO, HOLD_STEPS_MAX, check_hold_steps
+
+    if text.strip().lower() == "auto":
+        return HOLD_STEPS_AUTO
+    try:
+        return check_hold_steps(int(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--hold-steps must be auto (or 0: the told latency_steps + 1) or an integer from 1 "
+            f"to {HOLD_STEPS_MAX} (got {text!r})"
+        ) from None
+
+
 def resolve_rig_randomize(items: Iterable[str] | None):
     """The :class:`~ops_sim_ros.rig_randomization.RigRanges` of ``--rig-randomize`` (ValueError
     naming the figure and its allowed range)."""

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from .env_setup import ACTION_TYPES, config_arguments, env_setup
+from .held import check_hold_steps, hold_after, resolve_hold_steps
 from .observation import ObservationBuilder
 from .rig_randomization import RigRanges
 from .simulation import BatchedSimulation, StepResult
@@ -39,6 +40,13 @@ class OpsEnv(gym.Env):
     from its own random stream (the same seed, the same rigs), on top of its configuration
     (``realism`` and the other overrides); ``env.rig`` is the rig of the current episode, and
     ``env.config`` stays the configuration it was built with.
+
+    ``hold_steps`` (:mod:`ops_sim_ros.held`; default 1: none): each ``step`` is one decision of
+    ``k`` simulator steps: the action on the first, ``k - 1`` held ones (increment 0) after it,
+    fewer where the episode's ``max_episode_steps`` simulator steps end first; the observation,
+    reward and info are the last reading's, and the observation's memory holds the decisions'
+    readings alone. 0 (auto): k = the latency_steps + 1 of the episode's rig (drawn anew per
+    episode with ``rig_randomize``); ``env.hold_steps`` is the current episode's k.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
@@ -53,9 +61,11 @@ class OpsEnv(gym.Env):
         max_episode_steps: int = 200,
         observation_options: dict[str, Any] | None = None,
         rig_randomize: Any = None,
+        hold_steps: int = 1,
         **overrides: Any,
     ) -> None:
         super().__init__()
+        self.hold_option = check_hold_steps(hold_steps)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of None, human, rgb_array (got {render_mode!r})"
@@ -73,6 +83,7 @@ class OpsEnv(gym.Env):
         for bound in self.rig_ranges.bounds() if self.rig_ranges else ():
             self.config.replace(**bound)  # each end of every range, checked with the rest
         self._observations = ObservationBuilder(self.obs_spec)
+        self.hold_steps = resolve_hold_steps(self.hold_option, self.config.latency_steps)
         self._abs_scale = self.config.absolute_action_range_fs
         self._last: StepResult | None = None
         self._viewer = None
@@ -108,6 +119,7 @@ class OpsEnv(gym.Env):
         if self.rig_ranges:  # a rig of its own for this episode, drawn from the env's stream
             self.rig = self.rig_ranges.draw(self.np_random)
             self.sim.use_rig(self.config.replace(**self.rig))
+        self.hold_steps = resolve_hold_steps(self.hold_option, self.sim.config.latency_steps)
         if seed is not None:
             # Same seed -> same episode: restart the simulation's random stream and its drift.
             r = self.sim.reset(seed=self.np_random)
@@ -141,6 +153,7 @@ class OpsEnv(gym.Env):
         else:
             a = np.asarray(action, dtype=np.float64).reshape(1, self.stage)
             r = self.sim.step_setpoints(np.clip(a, -1.0, 1.0) * self._abs_scale)
+        r = hold_after(self.sim, r, self.hold_steps)
         self._last = r
         obs, info = self._obs_info(r, action)
         if self.render_mode == "human":

@@ -31,10 +31,12 @@ authors' observation: their Gaussian observation noise (sigma 1e-4 on these scal
 rounding of their power to 0.01 of their units and the constant per-environment offset of their
 PZM box (it is centred on the first episode's lengths; ours on the optimum).
 
-Set-points re-centred by whole cycles (``ObservationSpec(setpoint_window_cycles=w)``, w > 0, rig
-set only): each stage's set-point is observed relative to a reference, a whole number of optical
-periods that follows it: when a set-point leaves +- w of its reference, the reference moves to the
-whole cycle nearest to it (every frame of the history is shown against the current reference).
+Set-points re-centred by whole cycles (``ObservationSpec(setpoint_window_cycles=w)``, w > 0): each
+stage's set-point is observed relative to a reference, a whole number of optical periods that
+follows it: when a set-point leaves +- w of its reference, the reference moves to the whole cycle
+nearest to it (every frame of the history is shown against the current reference). In the
+authors' set the same window re-centres the applied delays of its pzm block (w in optical cycles,
+the reference subtracted in their units: whole cycles / 3).
 The interference is periodic in each delay by one optical period (the pulse envelope, a thousand
 times wider, hardly changes over the drift's range), so a policy sees the numbers it was trained
 on wherever drift has carried the delays over hours; absolute set-points (w = 0, the default)
@@ -105,11 +107,10 @@ class ObservationSpec:
         if isinstance(w, bool) or not isinstance(w, int | float) or not (0.0 <= w < 1e6):
             raise ValueError(f"setpoint_window_cycles must be a number >= 0 (got {w!r})")
         object.__setattr__(self, "setpoint_window_cycles", float(w))
-        if w > 0 and (self.observation != "rig" or not self.include_setpoints):
+        if w > 0 and not self.include_setpoints:
             raise ValueError(
-                "setpoint_window_cycles > 0 re-centres the rig observation's set-points: it needs "
-                f"observation='rig' with set-points (got observation={self.observation!r}, "
-                f"include_setpoints={self.include_setpoints})"
+                "setpoint_window_cycles > 0 re-centres the set-points (the authors' set: the "
+                "applied delays): it needs include_setpoints=True"
             )
         if 0 < w < 0.5:
             raise ValueError(
@@ -164,9 +165,14 @@ class ObservationSpec:
 
     @property
     def setpoint_columns(self) -> slice:
-        """Where one frame of the rig set holds the set-points."""
+        """Where one frame holds the set-points (the authors' set: the applied delays)."""
         start = self.num_slots * self.include_energies + 1 * self.include_power
         return slice(start, start + self.stage * self.include_setpoints)
+
+    @property
+    def setpoint_unit_cycles(self) -> float:
+        """Optical cycles per unit of the set-point columns (rig: 1; authors: 3)."""
+        return AUTHORS_PZM_CYCLES if self.observation == "authors" else 1.0
 
     @property
     def needs_applied_delays(self) -> bool:
@@ -348,6 +354,7 @@ class ObservationBuilder:
         self._window = spec.setpoint_window_cycles
         self._ref = np.zeros((self.num_envs, spec.stage), dtype=np.float32)
         self._sp_cols = spec.setpoint_columns
+        self._sp_unit = np.float32(spec.setpoint_unit_cycles)
         width = self._frame + (spec.stage if spec.history else 0)
         self._buf = np.zeros((self.num_envs, max(spec.history, 1), width), dtype=np.float32)
         self._started = np.zeros(self.num_envs, dtype=bool)
@@ -391,12 +398,12 @@ class ObservationBuilder:
 
     def _output(self) -> np.ndarray:
         out = self._buf.copy()  # (history 0: one slot of one frame, no action)
-        if self._window > 0:
-            newest = self._buf[:, 0, self._sp_cols]
+        if self._window > 0:  # the reference in cycles; the columns in their own units
+            newest = self._buf[:, 0, self._sp_cols] * self._sp_unit
             away = np.abs(newest - self._ref) > self._window
             if away.any():
                 self._ref[away] = np.round(newest[away])
-            out[:, :, self._sp_cols] -= self._ref[:, None, :]
+            out[:, :, self._sp_cols] -= self._ref[:, None, :] / self._sp_unit
         obs = out.reshape(self.num_envs, -1)
         return obs[0] if self.single else obs
 

@@ -20,6 +20,11 @@ set-points carry on (and so does the observation's memory). Training data then h
 a long run reaches (delays carried cycles away by drift, hours into a run) besides fresh starts;
 a chain of episodes lasts 1 / (1 - q) episodes on average. The random draws come from the
 simulation's stream, so a seed still fixes everything.
+
+``hold_steps = k`` (default 1; :mod:`ops_sim_ros.held`): each ``step`` is one decision of k
+simulator steps (the action, then k - 1 held steps), its observation built from the last reading
+alone, as ``OpsEnv(hold_steps=k)``; 0 (auto): k = the rig's latency_steps + 1 (one rig for the
+batch).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .env_setup import config_arguments, env_setup
+from .held import hold_after, resolve_hold_steps
 from .observation import ObservationBuilder
 from .simulation import BatchedSimulation, StepResult
 
@@ -50,6 +56,7 @@ class _BatchCore:
         max_episode_steps: int = 200,
         observation_options: dict[str, Any] | None = None,
         continue_prob: float = 0.0,
+        hold_steps: int = 1,
         **overrides: Any,
     ) -> None:
         if overrides.pop("rig_randomize", None):
@@ -70,6 +77,7 @@ class _BatchCore:
         self.single_action_space = setup.action_space
         self.sim = BatchedSimulation(self.config, num_envs=num_envs, seed=seed)
         self._observations = ObservationBuilder(self.obs_spec, num_envs)
+        self.hold_steps = resolve_hold_steps(hold_steps, self.config.latency_steps)
         self._abs_scale = self.config.absolute_action_range_fs
 
     @classmethod
@@ -85,6 +93,7 @@ class _BatchCore:
         else:
             a = np.asarray(actions, dtype=np.float64)
             r = self.sim.step_setpoints(np.clip(a, -1.0, 1.0) * self._abs_scale)
+        r = hold_after(self.sim, r, self.hold_steps)
         obs = self._observations.step(
             r.pulse_energies, r.power, r.setpoints_fs, actions, applied_fs=r.applied_fs
         )

@@ -179,8 +179,8 @@ def test_setpoint_window_spec_checks_and_old_specs():
     for bad in (-1.0, 0.2, True, float("nan"), "1"):
         with pytest.raises(ValueError, match="setpoint_window_cycles"):
             ObservationSpec(stage=3, setpoint_window_cycles=bad)
-    with pytest.raises(ValueError, match="observation='rig'"):
-        ObservationSpec(stage=3, observation="authors", setpoint_window_cycles=1.0)
+    with pytest.raises(ValueError, match="include_setpoints"):
+        ObservationSpec(stage=3, include_setpoints=False, setpoint_window_cycles=1.0)
     with pytest.raises(ValueError, match="ObservationBuilder"):
         spec = ObservationSpec(stage=3, setpoint_window_cycles=1.0)
         build_observation(spec, np.zeros(7), 0, [0] * 3)
@@ -227,3 +227,19 @@ def test_recentring_is_per_env_and_reset_clears_it():
     np.testing.assert_allclose(obs[:, spec.setpoint_columns], [[-0.2, 0.1], [0.5, -0.2]], atol=1e-5)
     b.reset(e, np.zeros(2), np.zeros((2, 2)), mask=[True, False])
     np.testing.assert_array_equal(b.setpoint_reference_cycles, [[0.0, 0.0], [0.0, -2.0]])
+
+
+def test_authors_window_recentres_the_applied_delays_in_their_units():
+    """The authors' set: the window (cycles) re-centres the pzm block (applied delay / 3)."""
+    spec = ObservationSpec(stage=2, observation="authors", setpoint_window_cycles=1.0)
+    period = spec.optical_period_fs
+    b = ObservationBuilder(spec)
+    cols = spec.setpoint_columns
+    assert cols == slice(4, 6) and spec.setpoint_unit_cycles == 3.0
+    e = np.zeros(3)
+    obs = b.reset(e, 0.5, np.zeros(2), applied_fs=np.array([0.4, -0.3]) * period)
+    np.testing.assert_allclose(obs[cols], [0.4 / 3, -0.3 / 3], atol=1e-6)  # inside: as built
+    obs = b.step(e, 0.5, np.zeros(2), np.zeros(2), applied_fs=np.array([1.2, -5.1]) * period)
+    np.testing.assert_array_equal(b.setpoint_reference_cycles, [1.0, -5.0])
+    np.testing.assert_allclose(obs[cols], [0.2 / 3, -0.1 / 3], atol=1e-6)
+    assert obs in spec.space()

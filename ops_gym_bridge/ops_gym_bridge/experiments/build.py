@@ -48,6 +48,10 @@ def build_model(options: Sequence[str], out: str | Path | None = None) -> TrainR
     return run
 
 
+#: Hyper-parameters a fine-tuned model (``--init-from``) takes from the run when it is loaded.
+_TUNABLE_ON_LOAD = ("learning_rate", "batch_size", "gamma", "tau", "gradient_steps")
+
+
 def _latest_checkpoint(out: Path) -> Path | None:
     ckpts = sorted(
         (out / "checkpoints").glob("model_*_steps.zip"),
@@ -76,6 +80,7 @@ def make_env(run: TrainRun) -> None:
             observation_options=observation_options(args),
             continue_prob=args.continue_prob,
             rig_randomize=args.rig_ranges or None,
+            hold_steps=args.hold_steps,
         )
     except ValueError as exc:
         raise TrainError(str(exc)) from None
@@ -103,7 +108,10 @@ def make_model(run: TrainRun) -> None:
     cls = algo_class(args.algo)
     if args.init_from:
         source = Path(args.init_from) / "model.zip"
-        model = cls.load(str(source), env=run.venv, device=args.device)
+        # The run's values of what an update reads (the initial model's, or --hyperparams'):
+        # SB3's load would otherwise keep the stored ones (learning_rate=0.0003 was ignored).
+        tuned = {k: run.params[k] for k in _TUNABLE_ON_LOAD if k in run.params}
+        model = cls.load(str(source), env=run.venv, device=args.device, **tuned)
         print(
             f"[train] fine-tuning {args.algo} from {source} (step {model.num_timesteps}; an "
             "empty replay buffer)",

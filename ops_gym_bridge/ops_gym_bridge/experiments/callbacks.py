@@ -96,20 +96,38 @@ class WallClockLimit(BaseCallback):
 class BestModelCallback(BaseCallback):
     """Every ``every`` calls (vector steps), ``evaluate(model) -> final P_N/P_max`` of the
     deterministic policy; logs ``eval/final_power`` and calls ``save_best(model, power)`` when it
-    is the best so far. Its time is not training time: a :class:`WallClockLimit` is told."""
+    is the best so far. Its time is not training time: a :class:`WallClockLimit` is told.
+    ``at_start``: evaluate once before the first step too (a fine-tuned model: its starting
+    figure, and DIR/best never worse than where it started)."""
 
-    def __init__(self, every: int, evaluate, save_best, limit: WallClockLimit | None = None):
+    def __init__(
+        self,
+        every: int,
+        evaluate,
+        save_best,
+        limit: WallClockLimit | None = None,
+        at_start: bool = False,
+    ):
         super().__init__()
         self.every = max(int(every), 1)
         self.evaluate = evaluate
         self.save_best = save_best
         self.limit = limit
+        self.at_start = at_start
         self.best = float("-inf")
         self.results: list[tuple[int, float]] = []
+
+    def _on_training_start(self) -> None:
+        if self.at_start:
+            self._evaluate()
 
     def _on_step(self) -> bool:
         if self.n_calls % self.every:
             return True
+        self._evaluate()
+        return True
+
+    def _evaluate(self) -> None:
         t0 = time.monotonic()
         power = float(self.evaluate(self.model))
         self.results.append((int(self.model.num_timesteps), power))
@@ -119,7 +137,6 @@ class BestModelCallback(BaseCallback):
             self.save_best(self.model, power)
         if self.limit is not None:
             self.limit._t0 += time.monotonic() - t0
-        return True
 
 
 def training_callbacks(
@@ -130,6 +147,7 @@ def training_callbacks(
     normalize: bool,
     max_seconds: float | None = None,
     best: tuple | None = None,
+    best_at_start: bool = False,
 ):
     """The progress bar, the checkpoints (``out/checkpoints/model_<steps>_steps.zip``), with
     ``best = (every, evaluate, save_best)`` a :class:`BestModelCallback` and, with
@@ -140,7 +158,7 @@ def training_callbacks(
     wall = WallClockLimit(max_seconds) if max_seconds else None
     limit = [wall] if wall else []
     if best is not None:
-        limit.insert(0, BestModelCallback(*best, limit=wall))
+        limit.insert(0, BestModelCallback(*best, limit=wall, at_start=best_at_start))
     return CallbackList(
         [
             ProgressCallback(total, enabled=progress),

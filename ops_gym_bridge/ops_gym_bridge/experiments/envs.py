@@ -26,10 +26,17 @@ def make_single_env(
     overrides: dict[str, Any] | None = None,
     observation_options: dict[str, Any] | None = None,
     rig_randomize=None,
+    hold_steps: int = 1,
 ):
     """One gymnasium env (not wrapped). ``observation_options``: e.g. ``{"history": 4}``;
     ``rig_randomize``: ranges of the rig's figures drawn per episode (in-process only,
-    ``ops_sim_ros.rig_randomization``)."""
+    ``ops_sim_ros.rig_randomization``); ``hold_steps``: simulator steps per decision
+    (in-process only, ``ops_sim_ros.held``; 0: the episode's latency_steps + 1)."""
+    if hold_steps != 1 and backend != "inprocess":
+        raise ValueError(
+            f"--hold-steps holds each decision in the simulator: it needs --backend inprocess "
+            f"(got {backend})"
+        )
     common = {
         "stage": stage,
         "mode": mode,
@@ -41,7 +48,7 @@ def make_single_env(
     if backend == "inprocess":
         from ops_sim_ros import OpsEnv
 
-        return OpsEnv(rig_randomize=rig_randomize, **common)
+        return OpsEnv(rig_randomize=rig_randomize, hold_steps=hold_steps, **common)
     if rig_randomize:
         raise ValueError(
             "--rig-randomize draws the rig in the simulator of each episode: it needs "
@@ -64,6 +71,7 @@ def _batched_vec_env(
     overrides: dict,
     observation_options: dict | None = None,
     continue_prob: float = 0.0,
+    hold_steps: int = 1,
 ):
     """ops_sim_ros's batched SB3 VecEnv (one physics call for all envs), if it is available."""
     try:
@@ -89,6 +97,7 @@ def _batched_vec_env(
             seed=seed,
             observation_options=observation_options,
             continue_prob=continue_prob,
+            hold_steps=hold_steps,
             **overrides,
         )
     return VecMonitor(venv, info_keywords=("power",))
@@ -109,6 +118,7 @@ def make_vec_env(
     observation_options: dict[str, Any] | None = None,
     continue_prob: float = 0.0,
     rig_randomize=None,
+    hold_steps: int = 1,
 ):
     """An SB3 VecEnv of ``n_envs`` monitored envs.
 
@@ -119,7 +129,10 @@ def make_vec_env(
     share of episode ends that carry on the same run (``ops_sim_ros.vec_env``; batched in-process
     envs only); ``rig_randomize``: ranges of the rig's figures that each env draws anew at
     every reset (``ops_sim_ros.rig_randomization``): a DummyVecEnv of ``OpsEnv`` (the batched
-    env runs one rig for all its envs).
+    env runs one rig for all its envs); ``hold_steps``: each step one decision of that many
+    simulator steps (``ops_sim_ros.held``; 0, auto: each env's rig's latency_steps + 1, per
+    episode where the rig is drawn per episode; in-process only). Episodes keep
+    ``episode_steps`` simulator steps (so about episode_steps / hold_steps decisions).
     """
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1 (got {n_envs})")
@@ -130,7 +143,13 @@ def make_vec_env(
         "episode_steps": episode_steps,
         "overrides": overrides,
         "observation_options": observation_options,
+        "hold_steps": hold_steps,
     }
+    if hold_steps != 1 and backend != "inprocess":
+        raise ValueError(
+            f"--hold-steps holds each decision in the simulator: it needs --backend inprocess "
+            f"(got {backend})"
+        )
     if rig_randomize:
         if backend != "inprocess":
             raise ValueError(
@@ -160,6 +179,7 @@ def make_vec_env(
             overrides or {},
             observation_options,
             continue_prob,
+            hold_steps,
         )
         if venv is not None:
             return venv

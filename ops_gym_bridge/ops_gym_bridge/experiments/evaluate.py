@@ -20,7 +20,6 @@ the model's is refused with a clear error.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import sys
@@ -29,17 +28,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from ops_controller_ros.policy_hold import (
-    HOLD_STEPS_AUTO,
-    HOLD_STEPS_MAX,
-    check_hold_steps,
-    resolve_hold_steps,
-)
+from ops_controller_ros.policy_hold import HOLD_STEPS_MAX, model_hold_steps, resolve_hold_steps
 from ops_sim_ros.config import SPLITS, make_config
 from ops_sim_ros.observation import OBSERVATION_SETS
 from ops_sim_ros.threads import limit_blas_threads
 
 from .. import cli_args
+from ..cli_args import hold_steps_type
 from . import continuous
 from .envs import EPISODE_STEPS
 from .recording import new_bag_path
@@ -129,14 +124,15 @@ def build_parser():
     p.add_argument(
         "--hold-steps",
         type=hold_steps_type,
-        default=1,
+        default=None,
         metavar="K",
         help="a model's readings per decision: it acts on one reading in K and holds its "
         "command (the same set-points) on the others, seeing only the readings it acts on, so "
         "a model trained without latency runs on a rig with L steps of it at K = L + 1; 1: "
         "every reading; auto (or 0): the told latency_steps + 1 (--realism / --rig; --env is "
         f"not told); 1 to {HOLD_STEPS_MAX} (ops_controller_ros.policy_hold; the policy node's "
-        "hold_steps)",
+        "hold_steps). Default: the model's (the hold_steps it was trained with, train "
+        "--hold-steps; 1 for a model trained without)",
     )
     p.add_argument(
         "--observation",
@@ -148,19 +144,6 @@ def build_parser():
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (0: default)")
     p.add_argument("--quiet", action="store_true", help="print only the summary table")
     return p
-
-
-def hold_steps_type(text: str) -> int:
-    """An argparse ``type`` for ``--hold-steps``: ``auto`` (0) or policy_hold's range."""
-    if text.strip().lower() == "auto":
-        return HOLD_STEPS_AUTO
-    try:
-        return check_hold_steps(int(text))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--hold-steps must be auto (or 0: the told latency_steps + 1) or an integer from 1 "
-            f"to {HOLD_STEPS_MAX} (got {text!r})"
-        ) from None
 
 
 def _parse(items: list[str], what: str) -> dict[str, Any]:
@@ -193,7 +176,7 @@ def resolve_subject(args) -> Subject:
                 "--observation chooses a model's observation set; a controller reads the "
                 "detector only"
             )
-        if args.hold_steps != 1:
+        if args.hold_steps not in (None, 1):
             raise EvaluationError(
                 "--hold-steps holds a learned policy's decisions; a controller is told the "
                 "latency instead (--rig latency_steps=L)"
@@ -242,18 +225,23 @@ def resolve_subject(args) -> Subject:
 
 
 def _with_hold(subject: Subject, args) -> Subject:
-    """``subject`` deciding on one reading in ``--hold-steps`` (0, auto: the told latency + 1,
-    resolved against the rig it is told of); said in the results (``hold_steps``)."""
-    if args.hold_steps == 1:
-        return subject
+    """``subject`` deciding on one reading in ``--hold-steps`` (default: the model's
+    ``hold_steps``, 1 where it has none; 0, auto: the told latency + 1, resolved against the rig
+    it is told of); said in the results (``hold_steps``)."""
+    asked = args.hold_steps
     try:
+        if asked is None:
+            asked = model_hold_steps(subject.policy.metadata)
+        if asked == 1:
+            return subject
         latency = subject.nominal_config("train", 1).latency_steps
-        hold = resolve_hold_steps(args.hold_steps, latency)
+        hold = resolve_hold_steps(asked, latency)
     except ValueError as exc:
         raise EvaluationError(str(exc)) from None
     if args.record and hold != 1:
         raise EvaluationError(
-            "--record records the bare policy's episodes; leave out --hold-steps to record"
+            "--record records the bare policy's episodes; give --hold-steps 1 to record "
+            f"(this run holds {hold} readings per decision)"
         )
     subject.hold_steps = hold
     subject.meta["hold_steps"] = hold

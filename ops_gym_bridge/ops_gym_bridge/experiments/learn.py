@@ -102,6 +102,9 @@ def build_metadata(
         "reward": args.reward,
         "hyperparams_set": args.hyperparams_set,
         "continue_prob": args.continue_prob,
+        # readings per decision (0: auto, each rig's latency_steps + 1): evaluate and the policy
+        # node hold the model so by default (ops_controller_ros.policy_hold.model_hold_steps)
+        "hold_steps": args.hold_steps,
         "hyperparams": params,
         "interrupted": interrupted,
         "train_final_power_mean": float(powers.mean()) if powers.size else None,
@@ -140,7 +143,9 @@ def _save(
 
 def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
     """(every, evaluate, save_best) of --eval-freq: deterministic test-environment episodes on
-    the batched simulator, with the run's observation (memory) and normalization."""
+    the batched simulator, with the run's observation (memory), normalization and held
+    decisions (auto: the fixed rig's latency_steps + 1, as ``evaluate`` resolves it)."""
+    from ops_sim_ros.held import resolve_hold_steps
     from stable_baselines3.common.vec_env import VecNormalize
 
     from .rollouts import rollout_policy
@@ -154,6 +159,7 @@ def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
         episode_steps=args.episode_steps,
         **args.rig_config,
     )
+    hold = resolve_hold_steps(args.hold_steps, cfg.latency_steps)
 
     def evaluate(model) -> float:
         venv = run.venv
@@ -165,6 +171,7 @@ def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
             args.episode_steps,
             seed=0,
             observation_options=observation_options(args),
+            hold_steps=hold,
         )
         power = float(res["power"][:, -1].mean())
         print(
@@ -218,6 +225,8 @@ def _latency_note(args) -> None:
     latency = make_config(args.stage, **args.rig_config).latency_steps
     if args.rig_ranges:
         latency = args.rig_ranges.max_latency(latency)
+    if args.hold_steps == 0 or args.hold_steps > latency:
+        return  # held decisions: every decision's reading shows the commands before it
     if latency > 0 and args.observation == "rig" and args.obs_history < latency + 1:
         print(
             f"[train] note: latency up to {latency} steps with --obs-history "
@@ -241,7 +250,11 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     max_s = None if not args.max_minutes else 60.0 * args.max_minutes
     t0_ref = [time.monotonic()]
     best = _best_model_hooks(run, t0_ref) if args.eval_freq > 0 else None
-    callbacks = training_callbacks(total, not args.no_progress, every, out, normalize, max_s, best)
+    # A fine-tuned model is evaluated before its first step too: its starting figure, and
+    # DIR/best never worse than the model it started from.
+    callbacks = training_callbacks(
+        total, not args.no_progress, every, out, normalize, max_s, best, bool(args.init_from)
+    )
     callbacks.callbacks.extend(run.extra_callbacks)
     if best is not None and args.resume:  # a resumed run keeps DIR/best unless it beats it
         _carry_best(callbacks, out / "best")
@@ -262,6 +275,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         f"obs_history={args.obs_history} observation={args.observation} reward={args.reward} "
         f"hyperparams_set={args.hyperparams_set} setpoint_window={args.setpoint_window:g} "
         f"continue_prob={args.continue_prob:g} "
+        + (f"hold_steps={args.hold_steps or 'auto'} " if args.hold_steps != 1 else "")
         + "".join(f"{k}={v} " for k, v in sorted(args.rig_config.items()))
         + (f"rig_randomize=[{args.rig_ranges.describe()}] " if args.rig_ranges else "")
         + f"steps {run.start_steps} -> {total}, out={out}",

@@ -83,15 +83,28 @@ def rollout_policy(
     seed: int,
     observation_options: dict[str, Any] | None = None,
     paired: bool = False,
+    hold_steps: int = 1,
 ) -> dict[str, np.ndarray]:
     """``episodes`` parallel episodes on ``sim_config`` with a batched ``predict(obs)``;
     ``observation_options``: the model's observation choices (``ObservationSpec.options()``,
     memory included; None: the default observation). ``paired``: the very episodes
-    :func:`controller_episodes` runs (:func:`policy_episodes`) instead of one vector env's."""
+    :func:`controller_episodes` runs (:func:`policy_episodes`) instead of one vector env's.
+    ``hold_steps`` k > 1 (resolved): held decisions in the env (``ops_sim_ros.held``, as
+    ``train --hold-steps`` trains), ``steps`` simulator steps in ceil(steps / k) decisions;
+    ``power`` then holds the reading after reset and after each decision (its last column is
+    the reading after the last simulator step, as without a hold)."""
     if paired:
+        if hold_steps != 1:
+            raise ValueError("paired episodes run every reading: hold_steps must be 1")
         return _paired_episodes(predict, sim_config, episodes, steps, seed, observation_options)
     return _vector_episodes(
-        lambda obs, _: predict(obs), sim_config, episodes, steps, seed, observation_options
+        lambda obs, _: predict(obs),
+        sim_config,
+        episodes,
+        steps,
+        seed,
+        observation_options,
+        hold_steps,
     )
 
 
@@ -111,9 +124,16 @@ def rollout_runner(
 
 
 def _vector_episodes(
-    choose, sim_config, episodes: int, steps: int, seed: int, observation_options=None
+    choose,
+    sim_config,
+    episodes: int,
+    steps: int,
+    seed: int,
+    observation_options=None,
+    hold_steps: int = 1,
 ) -> dict[str, np.ndarray]:
-    """The loop of both: ``choose(obs, last StepResult) -> actions`` on a vector env."""
+    """The loop of both: ``choose(obs, last StepResult) -> actions`` on a vector env (with
+    ``hold_steps`` > 1 one call per decision)."""
     from ops_sim_ros.vec_env import OpsVectorEnv
 
     env = OpsVectorEnv.from_config(
@@ -121,16 +141,18 @@ def _vector_episodes(
         num_envs=episodes,
         max_episode_steps=steps,
         observation_options=observation_options,
+        hold_steps=hold_steps,
     )
+    decisions = -(-steps // env.hold_steps)
     try:
         obs, info = env.reset(seed=seed)
-        power = np.empty((episodes, steps + 1))
+        power = np.empty((episodes, decisions + 1))
         power[:, 0] = np.asarray(info["power"], dtype=np.float64)
         returns = np.zeros(episodes)
-        for t in range(steps):
+        for t in range(decisions):
             obs, rewards, _, _, info = env.step(choose(obs, env.sim.last))
             returns += rewards
-            final = info.get("final_info") if t == steps - 1 else None
+            final = info.get("final_info") if t == decisions - 1 else None
             source = final if final is not None and "power" in final else info
             power[:, t + 1] = np.asarray(source["power"], dtype=np.float64)
         return {"power": power, "returns": returns}

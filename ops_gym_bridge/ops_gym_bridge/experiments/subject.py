@@ -64,12 +64,13 @@ class Subject:
         )
 
     def observation_options(self) -> dict[str, Any] | None:
-        """The policy's observation choices (memory included); None for a controller."""
+        """The policy's observation choices (memory included), as the policy runner builds
+        them (``policy_io.run_observation_spec``); None for a controller."""
         if self.policy is None:
             return None
-        from ops_controller_ros.policy_io import observation_spec_of
+        from ops_controller_ros.policy_io import run_observation_spec
 
-        return observation_spec_of(self.policy.metadata).options()
+        return run_observation_spec(self.policy.metadata).options()
 
     def run(self, split: str, episodes: int, steps: int, seed: int) -> dict[str, np.ndarray]:
         """``episodes`` episodes of ``steps`` steps of evaluation seed ``seed`` on ``split``."""

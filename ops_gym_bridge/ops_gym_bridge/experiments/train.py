@@ -10,6 +10,15 @@ environment step, and chooses the algorithm, ``--n-envs`` and ``--obs-history`` 
 the actions that led to them (``ops_sim_ros.observation``; saved in the metadata).
 ``--observation authors`` trains on the authors' observation set (their ``CPS_env`` default, with
 the actual delay-line lengths, a simulator-only oracle) instead of the rig's (the default).
+``--hold-steps K`` trains with held decisions (:mod:`ops_sim_ros.held`): each environment step is
+one decision, the action applied on the first of K simulator steps and held (increment 0) on the
+others, the observation built from the last reading alone (its memory holds the decisions'
+readings only: what ``evaluate --hold-steps`` and the policy node's ``hold_steps`` give a
+policy); ``auto``: K = each environment's latency_steps + 1, per episode with
+``--rig-randomize``. The reward is the last reading's, episodes keep ``--episode-steps``
+simulator steps (so about that / K decisions), and ``--timesteps`` counts decisions. Saved in
+the metadata (``hold_steps``; 0 for auto), so ``evaluate`` and the policy node hold the model so
+by default.
 
 Output directory (``--out DIR``)::
 
@@ -112,6 +121,20 @@ def _add_algorithm_arguments(p) -> None:
         "carries the delays cycles away, looks like the training episodes; 0: absolute "
         "set-points (default: 0; --resume and --init-from: the model's)",
     )
+    p.add_argument(
+        "--hold-steps",
+        type=cli_args.hold_steps_type,
+        default=None,
+        metavar="K",
+        help="held decisions: each environment step is one decision of K simulator steps (the "
+        "action on the first, the command held on the others), the observation and its memory "
+        "built from the decisions' readings alone, as evaluate --hold-steps runs a policy; "
+        "auto (or 0): each environment's latency_steps + 1 (with --rig-randomize, the "
+        "episode's); the reward is the last reading's and episodes keep --episode-steps "
+        "simulator steps; saved in the metadata, so evaluate and the policy node hold the "
+        "model so by default (default: 1, every reading; --resume and --init-from: the "
+        "model's)",
+    )
     cli_args.add_key_value_argument(
         p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
     )
@@ -172,7 +195,9 @@ def _add_run_arguments(p) -> None:
         metavar="MODEL_DIR",
         help="start from a trained model's weights (fine-tuning, e.g. with longer episodes or "
         "in another mode): its algorithm, stage, detector, observation and hyper-parameters are "
-        "kept, the step count continues, its training history goes into the new metadata",
+        "kept, the step count continues, its training history goes into the new metadata; "
+        "--hyperparams' learning_rate, batch_size, gamma, tau, gradient_steps apply; with "
+        "--eval-freq it is evaluated before its first step too",
     )
     p.add_argument("--episode-steps", type=int, default=EPISODE_STEPS, help="steps per episode")
     p.add_argument(

@@ -31,6 +31,7 @@ RUN_KEYS = (
     "reward",
     "hyperparams_set",
     "continue_prob",
+    "hold_steps",
 )
 
 
@@ -201,7 +202,8 @@ def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> T
         setattr(args, key, value)
     # The task may change (mode, split, episode length, reward, environments); by default it
     # stays the model's.
-    for key in ("mode", "split", "episode_steps", "n_envs", "reward", "continue_prob"):
+    keys = ("mode", "split", "episode_steps", "n_envs", "reward", "continue_prob", "hold_steps")
+    for key in keys:
         if "--" + key.replace("_", "-") not in given and initial.get(key) is not None:
             setattr(args, key, initial[key])
     if args.setpoint_window is None:  # a fine-tune may change it; by default the model's
@@ -224,7 +226,7 @@ def _model_setpoint_window(metadata: dict) -> float:
 
 def _fill_set_defaults(args) -> None:
     """Options not given take the hyper-parameter set's defaults (algo, n_envs, obs_history,
-    reward)."""
+    reward) or their own (observation, set-point window, continue_prob, hold_steps)."""
     try:
         defaults = hp.set_defaults(args.hyperparams_set)
     except ValueError as exc:
@@ -238,6 +240,13 @@ def _fill_set_defaults(args) -> None:
         args.setpoint_window = 0.0
     if args.continue_prob is None:
         args.continue_prob = 0.0
+    if args.hold_steps is None:  # (and models from before held decisions)
+        args.hold_steps = 1
+    if args.hold_steps != 1 and args.backend != "inprocess":
+        raise TrainError(
+            f"--hold-steps holds each decision in the simulator: it needs --backend inprocess "
+            f"(got --backend {args.backend})"
+        )
     if not args.continue_prob < 1.0:
         raise TrainError(f"--continue-prob must be in [0, 1) (got {args.continue_prob})")
     if args.continue_prob > 0 and (args.backend != "inprocess" or args.n_envs < 2):
