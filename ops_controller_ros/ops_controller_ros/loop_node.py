@@ -45,6 +45,7 @@ from ops_sim_ros.ros_interface import (
     TOPIC_INTENSITY,
     TOPIC_POWER,
     MessageGuard,
+    ParameterError,
     delays_from_msg,
     float_array_msg,
     power_from_msg,
@@ -169,6 +170,24 @@ class ControllerLoopNode(Node):
         self.get_logger().info(line)
         return keeper
 
+    def _actuator_range_keeper(self, stage: int) -> RangeKeeper | None:
+        """Without a rig file: the keeper of the nominal model's actuator range (the
+        simulator's ``actuator_range_cycles``, +-30 cycles by default). A free-running simulator
+        clips a set-point beyond it, and the loop would then wait for a command it never takes
+        (seen: a policy whose blind stage walked to +30 cycles stalled after 45 s)."""
+        try:
+            model = self.nominal_model(stage=stage)
+        except ParameterError:
+            return None
+        reach, period = model.actuator_range_fs, model.optical_period_fs
+        keeper = RangeKeeper(np.full(stage, -reach), np.full(stage, reach), period, MARGIN_CYCLES)
+        if self._range is None:  # said once, at the first start
+            self.get_logger().info(
+                f"set-points kept inside the simulator's actuator range +-{reach:.1f} fs "
+                f"(+-{model.actuator_range_cycles:g} cycles; a rig: -p rig_config:=RIG.yaml)"
+            )
+        return keeper
+
     def _in_range(self, command: np.ndarray) -> np.ndarray:
         """``command`` kept inside the rig's range (see the module docstring), the moves and
         clips said on the log (throttled)."""
@@ -259,6 +278,8 @@ class ControllerLoopNode(Node):
         if self.ctrl is None:
             return
         self._range_moves = 0  # the new controller's moves
+        if self.rig_model is None:
+            self._range = self._actuator_range_keeper(stage)
         if self._range is not None:
             self._range.moves = 0
         self.get_logger().info(f"simulator found: {stage} stages; closing the loop")
