@@ -132,8 +132,8 @@ def _add_algorithm_arguments(p) -> None:
         "auto (or 0): each environment's latency_steps + 1 (with --rig-randomize, the "
         "episode's); the reward is the last reading's and episodes keep --episode-steps "
         "simulator steps; saved in the metadata, so evaluate and the policy node hold the "
-        "model so by default (default: 1, every reading; --resume and --init-from: the "
-        "model's)",
+        "model so unless told otherwise (default: 1, every reading; --resume and --init-from: "
+        "the model's)",
     )
     cli_args.add_key_value_argument(
         p, "--hyperparams", help="override defaults from hyperparams/<algo>.yaml (YAML values)"
