@@ -13,24 +13,18 @@ pytest.importorskip("rclpy")
 
 @pytest.fixture
 def make_node():
-    import rclpy
+    from nodes_in_process import NodesInProcess
 
-    nodes = []
+    nodes = NodesInProcess()
 
     def make(module: str, cls: str, *overrides: str):
         import importlib
 
         node_cls = getattr(importlib.import_module(f"ops_controller_ros.{module}"), cls)
-        args = ["x", "--ros-args", *[a for o in overrides for a in ("-p", o)]]
-        rclpy.init(args=args)
-        node = node_cls()
-        nodes.append(node)
-        return node
+        return nodes.start(node_cls, *overrides)
 
     yield make
-    for node in nodes:
-        node.destroy_node()
-    rclpy.try_shutdown()
+    nodes.close()
 
 
 def _start(node, stage: int = 5, samples: int = 8):

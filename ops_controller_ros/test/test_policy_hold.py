@@ -148,22 +148,13 @@ def test_the_node_declares_hold_steps_once_with_its_range():
 @pytest.fixture
 def make_node():
     """PolicyNode() on the default context with ``-p`` overrides (no simulator needed)."""
-    rclpy = pytest.importorskip("rclpy")
-    nodes = []
+    pytest.importorskip("rclpy")
+    from nodes_in_process import NodesInProcess
+    from ops_controller_ros.policy_node import PolicyNode
 
-    def make(*overrides: str):
-        from ops_controller_ros.policy_node import PolicyNode
-
-        args = ["policy", "--ros-args", *[a for o in overrides for a in ("-p", o)]]
-        rclpy.init(args=args)
-        node = PolicyNode()
-        nodes.append(node)
-        return node
-
-    yield make
-    for node in nodes:
-        node.destroy_node()
-    rclpy.try_shutdown()
+    nodes = NodesInProcess()
+    yield lambda *overrides: nodes.start(PolicyNode, *overrides)
+    nodes.close()
 
 
 def test_the_node_holds_as_told_and_refuses_a_bad_value_before_spinning(make_node):
