@@ -36,6 +36,12 @@ _SPGD_FIELDS = {
     "restart_below": ("restart while P_N/P_max is below this ...", 0.0, 1.0, False),
     "restart_after": ("... and flat over this many iterations since the last", 1, 100000, False),
     "restart_flat": ("... within this fraction of its level", 0.0, 1.0, False),
+    "restart_after_per_latency": (
+        "... a window longer by this many iterations per step of the rig's latency",
+        0.0,
+        1e3,
+        False,
+    ),
     "restart_range_fs": ("width of a restart's random offset, fs (one cycle)", 0.0, 1e3, False),
     "restart_step_fs": ("set-point change per reading on the way to a restart", 0.0, 1e3, True),
 }
