@@ -227,6 +227,36 @@ def test_init_from_fine_tunes_with_another_task(trained, tmp_path):
     assert "Traceback" not in done.stderr
 
 
+def test_a_fine_tune_fills_its_new_buffer_with_its_own_actions_before_updating(trained, tmp_path):
+    """A fine-tune starts with an empty replay buffer: for learning_starts steps it acts with
+    the model it starts from and makes no update (the weights stay the initial ones), then
+    learns with the model's own number of gradient steps."""
+    from stable_baselines3 import SAC
+
+    out = tmp_path / "warm"
+    done = run(
+        "train", "--init-from", trained, "--out", out, "--timesteps", 300, "--no-progress",
+        "--hyperparams", "learning_starts=300",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "fine-tune: 300 steps of the model's own actions" in done.stdout
+    before, after = SAC.load(trained / "model.zip"), SAC.load(out / "model.zip")
+    for name, value in before.policy.state_dict().items():
+        assert np.array_equal(value.numpy(), after.policy.state_dict()[name].numpy()), name
+    assert after.gradient_steps == before.gradient_steps == 1
+    after.load_replay_buffer(out / "replay_buffer.pkl")
+    assert after.replay_buffer.size() == 300
+    # Past the warm-up it learns: the weights move.
+    done = run(
+        "train", "--init-from", trained, "--out", tmp_path / "learns", "--timesteps", 400,
+        "--no-progress", "--hyperparams", "learning_starts=300",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    moved = SAC.load(tmp_path / "learns" / "model.zip").policy.state_dict()
+    initial = before.policy.state_dict()
+    assert any(not np.array_equal(v.numpy(), moved[k].numpy()) for k, v in initial.items())
+
+
 def test_long_run_training_options_are_saved_and_checked(trained, tmp_path):
     """--continue-prob (episodes that carry on the same run) and --setpoint-window (set-points
     re-centred by whole cycles) reach the envs and the metadata; a fine-tune keeps them unless
