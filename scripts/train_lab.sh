@@ -32,7 +32,7 @@
 cd "$(dirname "$0")/.."
 source setup.bash >/dev/null
 set -euo pipefail
-OUT=${OUT:-runs/issue32/n5_hard_lab_warm}
+OUT=${OUT:-runs/issue32/n5_hard_lab_cw}
 MINUTES=${MINUTES:-50}
 TOTAL=${TOTAL:-9000000}
 INIT=${INIT-models/n5_hard}
@@ -40,7 +40,7 @@ HOLD=${HOLD-auto}
 # How a fine-tune learns: a tenth of the fast set's learning rate, and 20,000 steps of the model's
 # own actions in its new replay buffer before the first update (train: a fine-tune's
 # learning_starts)
-TUNE=${TUNE---hyperparams learning_rate=0.0001 learning_starts=20000}
+TUNE=${TUNE---hyperparams learning_rate=0.0001 learning_starts=20000 critic_warmup=200000}
 EVAL_FREQ=${EVAL_FREQ:-50000}
 EVAL_EPISODES=${EVAL_EPISODES:-20}
 hold=()

@@ -257,6 +257,35 @@ def test_a_fine_tune_fills_its_new_buffer_with_its_own_actions_before_updating(t
     assert any(not np.array_equal(v.numpy(), moved[k].numpy()) for k, v in initial.items())
 
 
+def test_a_fine_tune_with_critic_warmup_keeps_the_actor_while_the_critic_learns(trained, tmp_path):
+    """--hyperparams critic_warmup=K: after the warm buffer only the critic learns for K steps
+    (the actor's weights stay the initial ones); the step that ends it is stored, so a resumed
+    run keeps it, and past it the actor learns."""
+    from stable_baselines3 import SAC
+
+    out = tmp_path / "critic"
+    done = run(
+        "train", "--init-from", trained, "--out", out, "--timesteps", 400, "--no-progress",
+        "--hyperparams", "learning_starts=100", "critic_warmup=1000",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "critic warm-up: the actor stays as it is until step 2600" in done.stdout
+    before, after = SAC.load(trained / "model.zip"), SAC.load(out / "model.zip")
+    actor0, actor1 = before.actor.state_dict(), after.actor.state_dict()
+    assert all(np.array_equal(v.numpy(), actor1[k].numpy()) for k, v in actor0.items())
+    critic0, critic1 = before.critic.state_dict(), after.critic.state_dict()
+    assert any(not np.array_equal(v.numpy(), critic1[k].numpy()) for k, v in critic0.items())
+    assert read_metadata(out)["hyperparams"]["actor_frozen_until"] == 2600
+    # Resumed past the warm-up's end, the actor learns.
+    done = run(
+        "train", "--resume", "--out", out, "--timesteps", 800, "--no-progress",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "critic warm-up done at step 2600" in done.stdout
+    moved = SAC.load(out / "model.zip").actor.state_dict()
+    assert any(not np.array_equal(v.numpy(), moved[k].numpy()) for k, v in actor0.items())
+
+
 def test_long_run_training_options_are_saved_and_checked(trained, tmp_path):
     """--continue-prob (episodes that carry on the same run) and --setpoint-window (set-points
     re-centred by whole cycles) reach the envs and the metadata; a fine-tune keeps them unless

@@ -60,6 +60,8 @@ CLI_KEYS = (
     "net_arch",
     "action_noise",
     "action_noise_sigma",
+    "critic_warmup",  # a fine-tune: steps after learning_starts with the actor kept as it is
+    "actor_frozen_until",  # ... the step that ends it (stored, so that --resume keeps it)
 )
 
 

@@ -260,6 +260,20 @@ def _warm_buffer(run: TrainRun) -> int:
     return steps
 
 
+def _actor_frozen_until(run: TrainRun) -> int | None:
+    """The step until which the actor is kept as it is (:class:`.callbacks.ActorFreeze`): a
+    fine-tune with ``critic_warmup`` fixes it once, after its warm buffer, and stores it in the
+    hyper-parameters, so a resumed run keeps it. None: no warm-up (or not an actor-critic)."""
+    params, model = run.params, run.model
+    if not hasattr(model, "actor"):
+        return None
+    if run.args.init_from and int(params.get("critic_warmup", 0) or 0) > 0:
+        warm = min(int(params.get("learning_starts", 0) or 0), run.args.timesteps)
+        params["actor_frozen_until"] = run.start_steps + warm + int(params["critic_warmup"])
+    until = params.get("actor_frozen_until")
+    return int(until) if until else None
+
+
 def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     """Train; on success, Ctrl-C / SIGTERM or an error after the first step, save the model.
     Returns (interrupted, error, wall seconds)."""
@@ -280,6 +294,11 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         total, not args.no_progress, every, out, normalize, max_s, best, bool(args.init_from)
     )
     callbacks.callbacks.extend(run.extra_callbacks)
+    until = _actor_frozen_until(run)
+    if until is not None:
+        from .callbacks import ActorFreeze
+
+        callbacks.callbacks.insert(1, ActorFreeze(until))  # [0], the progress bar, is closed last
     if best is not None and args.resume:  # a resumed run keeps DIR/best unless it beats it
         _carry_best(callbacks, out / "best")
     # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).

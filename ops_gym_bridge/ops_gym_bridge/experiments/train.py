@@ -197,7 +197,9 @@ def _add_run_arguments(p) -> None:
         "in another mode): its algorithm, stage, detector, observation and hyper-parameters are "
         "kept, the step count continues, its training history goes into the new metadata; "
         "--hyperparams' learning_rate, batch_size, gamma, tau, gradient_steps apply; with "
-        "--eval-freq it is evaluated before its first step too",
+        "--eval-freq it is evaluated before its first step too. Its new replay buffer first "
+        "takes learning_starts steps of its own actions (no update meanwhile), and with "
+        "--hyperparams critic_warmup=STEPS only the critic learns for that many steps more",
     )
     p.add_argument("--episode-steps", type=int, default=EPISODE_STEPS, help="steps per episode")
     p.add_argument(
