@@ -93,6 +93,35 @@ class WallClockLimit(BaseCallback):
         return True
 
 
+class WarmBuffer(BaseCallback):
+    """No update until step ``until``: the model acts with its own policy and its transitions
+    fill the replay buffer (a fine-tune's ``learning_starts``; SB3 would act at random). Its
+    ``gradient_steps`` is 0 meanwhile; :meth:`restore` puts it back (also before a save)."""
+
+    def __init__(self, until: int):
+        super().__init__()
+        self.until = int(until)
+        self._kept: int | None = None
+
+    def _on_training_start(self) -> None:
+        if self.model.num_timesteps < self.until:
+            self._kept = self.model.gradient_steps
+            self.model.gradient_steps = 0
+
+    def _on_step(self) -> bool:
+        # (the update after a rollout comes after this: the step at ``until`` makes none)
+        if self._kept is not None and self.num_timesteps > self.until:
+            self.restore()
+        return True
+
+    def _on_training_end(self) -> None:
+        self.restore()
+
+    def restore(self) -> None:
+        if self._kept is not None:
+            self.model.gradient_steps, self._kept = self._kept, None
+
+
 class ActorFreeze(BaseCallback):
     """Keeps the actor's weights as they are until step ``until`` (``critic_warmup``): the
     critic's updates go on, the actor's loss reaches no weight of the actor. A fine-tune on
@@ -126,6 +155,9 @@ class ActorFreeze(BaseCallback):
         return True
 
     def _on_training_end(self) -> None:
+        self.restore()
+
+    def restore(self) -> None:
         if self.frozen:
             self._set(False)
 

@@ -236,31 +236,26 @@ def _latency_note(args) -> None:
         )
 
 
-def _warm_buffer(run: TrainRun) -> int:
+def _warm_buffer_until(run: TrainRun) -> int | None:
     """A fine-tune (``--init-from``) starts with an empty replay buffer. As SB3 does with
     ``learning_starts`` for a new model, it first fills the buffer for that many steps, but with
-    its own policy's actions instead of random ones, and makes no update meanwhile: its first
-    updates then see the states it visits, not a few hundred samples it overfits (the first held
-    ``lab`` fine-tune fell from 0.83 to 0.54 before recovering). Returns the steps taken."""
+    its own policy's actions instead of random ones, and makes no update meanwhile
+    (:class:`.callbacks.WarmBuffer`): its first updates then see the states it visits, not a few
+    hundred samples it overfits (the first held ``lab`` fine-tune fell from 0.83 to 0.54 before
+    recovering). Returns the step the updates start at (None: no warm-up)."""
     args, model = run.args, run.model
     steps = min(int(run.params.get("learning_starts", 0) or 0), args.timesteps)
     if not args.init_from or steps <= 0 or not hasattr(model, "replay_buffer"):
-        return 0
+        return None
     print(
         f"[train] fine-tune: {steps} steps of the model's own actions into its new replay "
         "buffer before the first update (learning_starts)",
         flush=True,
     )
-    kept = model.gradient_steps
-    model.gradient_steps = 0
-    try:
-        model.learn(total_timesteps=steps, reset_num_timesteps=False, log_interval=None)
-    finally:
-        model.gradient_steps = kept
-    return steps
+    return run.start_steps + steps
 
 
-def _actor_frozen_until(run: TrainRun) -> int | None:
+def _actor_frozen_until(run: TrainRun, warm_until: int | None) -> int | None:
     """The step until which the actor is kept as it is (:class:`.callbacks.ActorFreeze`): a
     fine-tune with ``critic_warmup`` fixes it once, after its warm buffer, and stores it in the
     hyper-parameters, so a resumed run keeps it. None: no warm-up (or not an actor-critic)."""
@@ -268,8 +263,8 @@ def _actor_frozen_until(run: TrainRun) -> int | None:
     if not hasattr(model, "actor"):
         return None
     if run.args.init_from and int(params.get("critic_warmup", 0) or 0) > 0:
-        warm = min(int(params.get("learning_starts", 0) or 0), run.args.timesteps)
-        params["actor_frozen_until"] = run.start_steps + warm + int(params["critic_warmup"])
+        start = warm_until or run.start_steps
+        params["actor_frozen_until"] = start + int(params["critic_warmup"])
     until = params.get("actor_frozen_until")
     return int(until) if until else None
 
@@ -294,7 +289,12 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         total, not args.no_progress, every, out, normalize, max_s, best, bool(args.init_from)
     )
     callbacks.callbacks.extend(run.extra_callbacks)
-    until = _actor_frozen_until(run)
+    warm_until = _warm_buffer_until(run)
+    if warm_until is not None:
+        from .callbacks import WarmBuffer
+
+        callbacks.callbacks.insert(1, WarmBuffer(warm_until))
+    until = _actor_frozen_until(run, warm_until)
     if until is not None:
         from .callbacks import ActorFreeze
 
@@ -326,9 +326,8 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     )
     _latency_note(args)
     try:
-        warm = _warm_buffer(run)
         model.learn(
-            total_timesteps=args.timesteps - warm,
+            total_timesteps=args.timesteps,
             callback=callbacks,
             # a fine-tuned model keeps its step count: past learning_starts, it acts from the
             # first step instead of filling its new buffer with random actions
@@ -347,6 +346,8 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         callbacks.callbacks[0].close()
+        for callback in callbacks.callbacks:  # the model is saved with its own settings
+            getattr(callback, "restore", lambda: None)()
     run.wall_limit_reached = any(getattr(c, "reached", False) for c in callbacks.callbacks)
     wall = time.monotonic() - t0
     try:
