@@ -36,7 +36,7 @@ SPECS = {
     "/s/ops_sim": sim_node.PARAMS,
     "/s/ops_spgd": [*spgd_node.PARAMS, *loop_node.LOOP_PARAMS],
     "/p/ops_sim": sim_node.PARAMS,
-    "/p/ops_policy": policy_node.PARAMS,
+    "/p/ops_policy": [*policy_node.PARAMS, *loop_node.LOOP_PARAMS],
 }
 HOSTILE_VALUES = [
     math.nan,
@@ -204,7 +204,7 @@ def _live(node: str) -> set[str]:
     """The parameters a node applies while it runs (the rest are refused)."""
     if node.endswith("ops_sim"):
         return {s.name for s in sim_node.PARAMS if not s.read_only}
-    if node.endswith(("ops_tracker", "ops_spgd")):
+    if node.endswith(("ops_tracker", "ops_spgd", "ops_policy")):  # the controller loops
         return set(loop_node.LIVE_PARAMS)
     return set()
 

@@ -42,6 +42,8 @@ from ops_sim_ros.held import (  # noqa: F401  (declared once, with the env side 
     resolve_hold_steps,
 )
 
+from .runner_wrapper import RunnerWrapper
+
 #: The policy node's default: the model's own (its metadata's ``hold_steps``; 1 where absent).
 HOLD_STEPS_MODEL = -1
 HOLD_STEPS_HELP = (
@@ -60,7 +62,7 @@ def model_hold_steps(metadata: dict) -> int:
     return check_hold_steps(metadata.get(HOLD_STEPS, HOLD_STEPS_DEFAULT))
 
 
-class HeldRunner:
+class HeldRunner(RunnerWrapper):
     """A runner (``act``, ``restart``, ``took``, ``spec``, ``policy``: a
     :class:`~ops_controller_ros.policy_io.PolicyRunner`, a switching model or a watchdog) that
     decides on the first reading and then on one in ``hold_steps``; on the others :meth:`act`
@@ -75,20 +77,10 @@ class HeldRunner:
                 f"{HOLD_STEPS} 0 (auto) must be resolved against the told latency first "
                 "(resolve_hold_steps)"
             )
+        super().__init__(runner, num_envs)
         self.hold_steps = hold
-        self.runner = runner
-        self.policy = runner.policy
-        self.spec = runner.spec
-        self._single = num_envs is None
-        self._n = 1 if num_envs is None else int(num_envs)
         self.readings = 0  # readings since the (re)start
         self.decisions = 0  # of which the policy decided on
-
-    def __getattr__(self, name):
-        # The wrapped runner's own figures (a switching model's ``holding``, a watchdog's kicks).
-        if name == "runner":
-            raise AttributeError(name)
-        return getattr(self.runner, name)
 
     def restart(self) -> None:
         """A new start: the next reading is a decision, with a new history."""
@@ -109,7 +101,3 @@ class HeldRunner:
             return self.runner.act(pulse_energies, power, setpoints_fs, applied_fs)
         held = np.zeros((self._n, self.spec.stage), dtype=np.float32)
         return held[0] if self._single else held
-
-    def took(self, action) -> None:
-        """The action applied after a decision's reading, if another part chose it."""
-        self.runner.took(action)

@@ -34,6 +34,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from .runner_wrapper import RunnerWrapper
+
 REACQUIRE_KEY = "reacquire"
 
 
@@ -79,28 +81,18 @@ class WatchdogParams:
         return cls(**{k: v for k, v in data.items() if k in known})
 
 
-class ReacquireWatchdog:
+class ReacquireWatchdog(RunnerWrapper):
     """A runner wrapped in the re-acquiring watchdog (module docstring); the interface of
     :class:`~ops_controller_ros.policy_io.PolicyRunner` (``act``, ``restart``, ``took``,
     ``spec``, ``policy``). ``kicking``: per rig, whether the last action was a kick's;
     ``kicks``: kicks begun so far, all rigs together."""
 
     def __init__(self, runner, params: WatchdogParams | None = None, num_envs: int | None = None):
+        super().__init__(runner, num_envs)
         self.params = params or WatchdogParams()
-        self.runner = runner
-        self.policy = runner.policy
-        self.spec = runner.spec
-        self._single = num_envs is None
-        self._n = 1 if num_envs is None else int(num_envs)
         self._rng = np.random.default_rng(self.params.seed)
         self.kicks = 0
         self.restart()
-
-    def __getattr__(self, name):
-        # The wrapped runner's own figures (a switching model's ``holding``, ``switches``...).
-        if name == "runner":
-            raise AttributeError(name)
-        return getattr(self.runner, name)
 
     def restart(self) -> None:
         """A new start (the simulator reset): counts cleared, no kick under way."""
@@ -136,10 +128,6 @@ class ReacquireWatchdog:
         if kicking.any():
             self.runner.took(out)
         return out
-
-    def took(self, action) -> None:
-        """The action applied, if another part chose it; passed on to the wrapped runner."""
-        self.runner.took(action)
 
 
 def watchdog_params_of(metadata: dict) -> WatchdogParams | None:

@@ -143,3 +143,43 @@ def test_the_rig_of_a_benchmark_reaches_training_evaluation_and_controllers(tmp_
     overrides = bench_worker.env_overrides(train)
     assert overrides["latency_steps"] == 2 and overrides["realism"] == "lab"
     assert benchmark.run(["--list", "--rig", "trace_adc_bits=0.5", "--out", str(tmp_path)]) == 2
+
+
+def test_the_benchmark_evaluates_a_held_model_with_its_hold(tmp_path):
+    """A model trained with ``train --hold-steps 2`` decides on one reading in two in the
+    benchmark's evaluation, as ``evaluate`` holds it (one resolution: evaluate.with_hold); one
+    without the entry decides on every reading, as before."""
+    import dataclasses
+
+    from ops_controller_ros.policy_io import load_policy
+    from ops_gym_bridge.experiments import train
+
+    out = tmp_path / "held"
+    code = train.run(
+        ["--algo", "sac", "--stage", "2", "--mode", "hard", "--timesteps", "60", "--seed", "0",
+         "--hold-steps", "2", "--out", str(out), "--no-progress",
+         "--hyperparams", "learning_starts=40", "batch_size=32", "net_arch=[16,16]"]
+    )  # fmt: skip
+    assert code == 0
+    held = load_policy(out)
+    assert held.metadata["hold_steps"] == 2
+    spec = {
+        "algo": "sac", "stage": 2, "mode": "hard", "detector": held.metadata["config"]["detector"],
+        "transfer_modes": ["medium"], "eval": {"seeds": [0], "episodes": 2, "steps": 20},
+    }  # fmt: skip
+    result = bench_worker.evaluate_run(spec, held)
+    assert result["hold_steps"] == 2
+    subject = bench_worker.subject_of(spec, held)
+    assert subject.hold_steps == 2 and subject.with_mode("medium").hold_steps == 2
+    # The very episodes of the held subject, and not those of the bare policy.
+    again = subject.evaluate(("test",), [0], 2, 20)["test"]
+    assert result["splits"]["test"]["curve_mean"] == again["curve_mean"]
+    bare = dataclasses.replace(subject, hold_steps=1).evaluate(("test",), [0], 2, 20)["test"]
+    assert bare["curve_mean"] != again["curve_mean"]
+    # Without the entry (every model from before the option): every reading, no hold_steps.
+    old = dataclasses.replace(
+        held, metadata={k: v for k, v in held.metadata.items() if k != "hold_steps"}
+    )
+    plain = bench_worker.evaluate_run(spec, old)
+    assert "hold_steps" not in plain and bench_worker.subject_of(spec, old).hold_steps == 1
+    assert plain["splits"]["test"]["curve_mean"] == bare["curve_mean"]

@@ -225,10 +225,16 @@ def resolve_subject(args) -> Subject:
 
 
 def _with_hold(subject: Subject, args) -> Subject:
-    """``subject`` deciding on one reading in ``--hold-steps`` (default: the model's
+    """``subject`` deciding on one reading in ``--hold-steps`` (:func:`with_hold`)."""
+    return with_hold(subject, args.hold_steps, record=bool(args.record))
+
+
+def with_hold(subject: Subject, asked: int | None = None, record: bool = False) -> Subject:
+    """A policy ``subject`` deciding on one reading in ``asked`` (None: the model's
     ``hold_steps``, 1 where it has none; 0, auto: the told latency + 1, resolved against the rig
-    it is told of); said in the results (``hold_steps``)."""
-    asked = args.hold_steps
+    it is told of); said in the results (``hold_steps``). One resolution for ``evaluate`` and
+    the benchmark's evaluation (:mod:`ops_gym_bridge.table1.bench_worker`), so a model trained
+    with ``train --hold-steps`` is evaluated with its hold by both."""
     try:
         if asked is None:
             asked = model_hold_steps(subject.policy.metadata)
@@ -238,7 +244,7 @@ def _with_hold(subject: Subject, args) -> Subject:
         hold = resolve_hold_steps(asked, latency)
     except ValueError as exc:
         raise EvaluationError(str(exc)) from None
-    if args.record and hold != 1:
+    if record and hold != 1:
         raise EvaluationError(
             "--record records the bare policy's episodes; give --hold-steps 1 to record "
             f"(this run holds {hold} readings per decision)"

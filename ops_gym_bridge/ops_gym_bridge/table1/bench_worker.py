@@ -95,9 +95,11 @@ def observation_options(spec: dict) -> dict[str, Any]:
 def subject_of(spec: dict, policy=None):
     """The run as an evaluation :class:`~ops_gym_bridge.experiments.subject.Subject`: its
     controller (told of the nominal rig: stage, detector and the run's rig, as its node is) or
-    its trained ``policy`` (on the controllers' very episodes), on the run's mode."""
+    its trained ``policy`` (on the controllers' very episodes, holding its decisions as its
+    metadata's ``hold_steps`` says, as ``evaluate`` does), on the run's mode."""
     from ops_sim_ros.config import make_config
 
+    from ..experiments.evaluate import with_hold
     from ..experiments.subject import Subject
 
     rig = dict(spec.get("rig") or {})
@@ -109,7 +111,7 @@ def subject_of(spec: dict, policy=None):
         "rig": rig,
     }
     if policy is not None:
-        return Subject(name=spec["algo"], policy=policy, paired=True, **common)
+        return with_hold(Subject(name=spec["algo"], policy=policy, paired=True, **common))
     nominal = make_config(stage=spec["stage"], detector=spec["detector"], **rig)
     return Subject(
         name=spec["controller"],
@@ -151,7 +153,8 @@ def record_traces(policy, spec: dict) -> dict[str, Any]:
 
 def evaluate_run(spec: dict, policy=None) -> dict[str, Any]:
     """The run's ``evaluation.json``: per split and per transfer mode the one summary of
-    :mod:`ops_gym_bridge.experiments.summary`; (``traces``) Figure 17's traces."""
+    :mod:`ops_gym_bridge.experiments.summary`; (``traces``) Figure 17's traces; ``hold_steps``
+    where the model holds its decisions (:func:`subject_of`)."""
     ev = spec["eval"]
     seeds, episodes, steps = list(ev["seeds"]), int(ev["episodes"]), int(ev["steps"])
     subject = subject_of(spec, policy)
@@ -163,6 +166,8 @@ def evaluate_run(spec: dict, policy=None) -> dict[str, Any]:
         "splits": subject.evaluate(("train", "test"), seeds, episodes, steps),
         "transfer": {},
     }
+    if subject.hold_steps != 1:  # (a model trained with train --hold-steps)
+        result["hold_steps"] = subject.hold_steps
     for mode in spec.get("transfer_modes") or []:
         if mode != spec["mode"]:
             transfer = subject.with_mode(mode).evaluate(("test",), seeds, episodes, steps)

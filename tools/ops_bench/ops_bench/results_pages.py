@@ -382,7 +382,23 @@ def render_held_out(args: list[str], page_dir: Path) -> str:
     return caption + "\n\n" + "\n".join(lines)
 
 
+def render_spgd_baseline(args: list[str], page_dir: Path) -> str:
+    """The paper's SPGD-PID in every mode: the cells ``ops-bench spgd-baseline --store FILE``
+    kept (one row per mode and environment)."""
+    from ops_bench.spgd_baseline import table_lines
+
+    (path,) = [REPO / a for a in args]
+    stored = json.loads(path.read_text())
+    caption = (
+        f"*From `{rel(path)}` ({len(stored['seeds'])} seeds × {stored['episodes_per_seed']} "
+        f"episodes of {stored['steps']} steps per cell), stored by "
+        f"`{' '.join(stored['command_line'])}`.*"
+    )
+    return caption + "\n\n" + "\n".join(table_lines(stored))
+
+
 RENDERERS = {
+    "spgd-baseline": render_spgd_baseline,
     "table1": render_table1,
     "table1-sets": render_table1_sets,
     "continuous": render_continuous,

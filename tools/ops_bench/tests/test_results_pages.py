@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from ops_bench import results_pages
+from ops_bench import results_pages, spgd_baseline
 
 
 def test_committed_results_pages_are_what_the_command_writes():
@@ -128,3 +128,48 @@ def test_held_out_table_renders_a_fixture_in_a_block_quote(tmp_path, monkeypatch
 def test_seeds_are_written_as_the_docs_write_them():
     assert results_pages.seeds_text(list(range(100, 120))) == "100 ... 119"
     assert results_pages.seeds_text([7, 9]) == "7 9"
+
+
+def _baseline(final_test: float) -> dict:
+    cell = {
+        "initial_power_mean": 0.20581,
+        "final_power_mean": 0.88704,
+        "final_power_std": 0.14271,
+        "episode_return_mean": -50.94,
+        "episode_return_std": 26.61,
+    }
+    return {
+        "command_line": ["ops-bench", "spgd-baseline", "--stage", "5", "--store", "b.json"],
+        "seeds": [0, 1, 2],
+        "episodes_per_seed": 4,
+        "steps": 200,
+        "modes": {"easy": {"train": cell, "test": {**cell, "final_power_mean": final_test}}},
+    }
+
+
+def test_spgd_baseline_table_is_rendered_from_its_json(tmp_path, monkeypatch):
+    (tmp_path / "b.json").write_text(json.dumps(_baseline(0.5)))
+    monkeypatch.setattr(results_pages, "REPO", tmp_path)
+    lines = results_pages.expand("<!-- generated: spgd-baseline b.json -->\n", tmp_path)
+    lines = lines.splitlines()
+    assert lines[0] == (
+        "*From `b.json` (3 seeds × 4 episodes of 200 steps per cell), stored by "
+        "`ops-bench spgd-baseline --stage 5 --store b.json`.*"
+    )
+    assert lines[2:] == [
+        *spgd_baseline.TABLE_HEAD,
+        "| easy | train | 0.206 | 0.8870 ± 0.1427 | -50.9 ± 26.6 |",
+        "| easy | test | 0.206 | 0.5000 ± 0.1427 | -50.9 ± 26.6 |",
+    ]
+
+
+def test_the_spgd_page_takes_the_baseline_table_from_the_stored_json():
+    """No hand-kept copy in notes.md: the page's rows are those of baseline.json."""
+    notes = (results_pages.RESULTS / "spgd" / "notes.md").read_text()
+    assert "<!-- generated: spgd-baseline docs/results/spgd/baseline.json -->" in notes
+    assert spgd_baseline.TABLE_HEAD[0] not in notes
+    stored = json.loads((results_pages.RESULTS / "spgd" / "baseline.json").read_text())
+    assert set(stored["modes"]) == {"easy", "medium", "hard", "extreme"}
+    spgd = next(page for page in results_pages.TOPICS if page.name == "spgd")
+    page = results_pages.render_page(spgd)
+    assert "\n".join(spgd_baseline.table_lines(stored)) in page
