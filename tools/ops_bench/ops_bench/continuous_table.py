@@ -76,6 +76,8 @@ def table_lines(dds: Path, inprocess: Path, select=lambda stem: True, link: str 
         kind, name, seconds, _ = match.groups()
         data = json.loads(path.read_text())
         mode = data["args"]["mode"]
+        if kind == "model" and data["args"].get("model"):  # the model's folder, not the file's
+            name = Path(data["args"]["model"]).name  # name (model_n5_sac300k_authors_hard_600s)
         cell = f"{kind}_{name}" if kind == "model" else kind  # the in-process run's prefix
         rows.append((("tracker", "model", "spgd").index(kind), MODES.index(mode), cell, mode,
                      int(seconds), data, path.name))  # fmt: skip
