@@ -259,8 +259,8 @@ def test_a_fine_tune_fills_its_new_buffer_with_its_own_actions_before_updating(t
 
 def test_a_fine_tune_with_critic_warmup_keeps_the_actor_while_the_critic_learns(trained, tmp_path):
     """--hyperparams critic_warmup=K: after the warm buffer only the critic learns for K steps
-    (the actor's weights stay the initial ones); the step that ends it is stored, so a resumed
-    run keeps it, and past it the actor learns."""
+    (the actor's weights and SAC's entropy coefficient stay the initial ones); the step that
+    ends it is stored, so a resumed run keeps it, and past it the actor learns."""
     from stable_baselines3 import SAC
 
     out = tmp_path / "critic"
@@ -275,6 +275,9 @@ def test_a_fine_tune_with_critic_warmup_keeps_the_actor_while_the_critic_learns(
     assert all(np.array_equal(v.numpy(), actor1[k].numpy()) for k, v in actor0.items())
     critic0, critic1 = before.critic.state_dict(), after.critic.state_dict()
     assert any(not np.array_equal(v.numpy(), critic1[k].numpy()) for k, v in critic0.items())
+    # SAC's entropy coefficient is held with the actor (left free, it grew against the frozen
+    # actor and, released, drove it to a random policy)
+    assert after.log_ent_coef.item() == before.log_ent_coef.item()
     assert read_metadata(out)["hyperparams"]["actor_frozen_until"] == 2600
     # Resumed past the warm-up's end, the actor learns.
     done = run(

@@ -6,6 +6,7 @@ import sys
 import time
 
 import numpy as np
+import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from .envs import final_powers
@@ -134,11 +135,24 @@ class ActorFreeze(BaseCallback):
         super().__init__()
         self.until = int(until)
         self.frozen = False
+        self._log_ent_coef = None
 
     def _set(self, frozen: bool) -> None:
         for param in self.model.actor.parameters():
             param.requires_grad_(not frozen)
         self.frozen = frozen
+        # SAC's entropy coefficient is the actor's too: left to learn against a frozen actor
+        # it grew tenfold (0.0085 -> 0.091 in 200,000 steps) and, released, drove the actor to
+        # a random policy (0.83 -> 0.13 at the next evaluation). It is held with the actor.
+        log_ent_coef = getattr(self.model, "log_ent_coef", None)
+        self._log_ent_coef = (
+            log_ent_coef.detach().clone() if frozen and log_ent_coef is not None else None
+        )
+
+    def _hold_entropy(self) -> None:
+        if self._log_ent_coef is not None:
+            with torch.no_grad():
+                self.model.log_ent_coef.copy_(self._log_ent_coef)
 
     def _on_training_start(self) -> None:
         if self.model.num_timesteps < self.until:
@@ -149,6 +163,7 @@ class ActorFreeze(BaseCallback):
             )
 
     def _on_step(self) -> bool:
+        self._hold_entropy()  # (the update after the last rollout moved it)
         if self.frozen and self.num_timesteps >= self.until:
             self._set(False)
             print(f"[train] critic warm-up done at step {self.num_timesteps}", flush=True)
@@ -159,6 +174,7 @@ class ActorFreeze(BaseCallback):
 
     def restore(self) -> None:
         if self.frozen:
+            self._hold_entropy()
             self._set(False)
 
 
