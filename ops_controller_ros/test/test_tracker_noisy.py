@@ -52,3 +52,60 @@ def test_the_lab_rig_is_held_near_the_top():
     3000 readings of seeds 1000 and 1001 held 95.1 % and 95.8 % >= 0.95; now 99.45 % each."""
     held = [_held(seed) for seed in (71, 72)]
     assert min(held) >= 0.97, held
+
+
+def _knot_counts(budget_ms: float, seed: int = 1003, steps: int = 1500) -> tuple[int, int]:
+    """(knots taken, knot tests cut short) of a continuous `lab` run, hard, with a budget and,
+    as over DDS, 15 % of the commands a step late (the rig stepped once more on the old one)."""
+    config = make_config(5, "hard", "test", realism="lab")
+    sim = BatchedSimulation(config, 1, seed=seed)
+    params = TrackerParams(knot_budget_ms=budget_ms, quiet_drift_prior_cycles=0.0)
+    tracker = PhaseTracker(config, params, seed=seed)
+    sim.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    before = None
+    for _ in range(steps):
+        command = next_command(tracker)
+        late = before is not None and rng.random() < 0.15
+        if late:
+            sim.step_setpoints(before[None])
+        res = sim.step_setpoints(command[None])
+        tracker.observe(float(res.power[0]), res.pulse_energies[0], steps=1 + late, command_age=0)
+        tracker.think()  # the node runs a deferred knot test once the command is out
+        before = command
+    return tracker.knots, tracker.knot_tests_cut
+
+
+def test_a_knot_test_cut_short_on_a_noisy_detector_takes_no_knot():
+    """A knot test iterated once or twice wins on the noise: on a noisy detector a test its
+    real-time budget cuts short is left inconclusive (no knot, counted); without a budget the
+    same run's tests run to the end and are never counted as cut."""
+    knots, cut = _knot_counts(budget_ms=1e-6)  # always past the deadline
+    assert knots == 0 and cut > 0
+    _, cut = _knot_counts(budget_ms=0.0)
+    assert cut == 0
+
+
+def test_a_quiet_drift_is_held_stiffer_until_a_knot_or_a_cut_knot_test():
+    """On a noisy detector the drift prior is quiet_drift_prior_cycles once no knot was taken
+    for quiet_after readings, noisy_drift_prior_cycles after a knot, and never the quiet one
+    while the knot tests are cut short (no knot could be seen); a clean detector keeps its own."""
+    params = TrackerParams()
+    noisy = PhaseTracker(make_config(5, "hard", "test", realism="lab"), params, seed=2)
+    noisy._tick = params.quiet_after + 5
+    assert noisy._drift_prior() == params.quiet_drift_prior_cycles
+    noisy._knot_tick = noisy._tick - 3  # a knot taken three readings ago
+    assert noisy._drift_prior() == params.noisy_drift_prior_cycles
+    noisy._knot_tick = -(10**9)
+    noisy._knot_test_s = 0.05  # the last knot test was cut short
+    assert noisy._drift_prior() == params.noisy_drift_prior_cycles
+    clean = PhaseTracker(make_config(5, "hard", "test"), params, seed=2)
+    clean._tick = params.quiet_after + 5
+    assert clean._drift_prior() == params.drift_prior_cycles
+    off = PhaseTracker(
+        make_config(5, "hard", "test", realism="lab"),
+        TrackerParams(quiet_drift_prior_cycles=0.0),
+        seed=2,
+    )
+    off._tick = params.quiet_after + 5
+    assert off._drift_prior() == params.noisy_drift_prior_cycles

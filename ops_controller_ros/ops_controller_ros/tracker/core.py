@@ -126,6 +126,9 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self.false_locks = 0  # locks dropped for that
         self.calibration_resets = 0
         self.knots = 0  # knot hypotheses taken while tracking
+        self.knot_tests_cut = 0  # knot tests its budget cut short on a noisy detector: no knot
+        self._knot_test_s = None  # the last knot test's seconds, when its budget cut it short
+        self._knot_skips = 0
         self.hops = 0  # whole-cycle moves made to measure the wavelength
         self._hop = None  # (stage, cycles) of the move in the command just sent
         self._hop_next = 0  # tick of the next move
@@ -329,16 +332,34 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         bits = np.array([bin(row & c).count("1") & 1 for c in cols])
         return (1.0 - 2.0 * bits) / np.sqrt(n)
 
+    def _drift_prior(self) -> float:
+        """How far one window may move the drift estimate (std, cycles per step): looser on a
+        clean detector, stiff on a noisy one, stiffer still while no knot has been taken for
+        ``quiet_after`` readings and the knot tests run to their end (see TrackerParams)."""
+        p = self.params
+        if not self._noisy():
+            return p.drift_prior_cycles
+        # Quiet only where a knot would be seen: not while the knot tests are cut short (a
+        # real-time budget on a slow machine, docs/tracker.md): over DDS, `lab`, the stiff prior
+        # with no knot test lost the lock for 8 minutes of 10 when the drift turned.
+        quiet = self._tick - self._knot_tick >= p.quiet_after and self._knot_test_s is None
+        if quiet and p.quiet_drift_prior_cycles:
+            return p.quiet_drift_prior_cycles
+        return p.noisy_drift_prior_cycles
+
     def _hold_dither(self) -> float:
         """The tracking excursion's length: ``hold_dither_cycles``, larger on a noisy detector
         (a reading near the optimum is quadratic in the error, so the excursion must lift its
-        signal above the noise: 0.3 sqrt(sigma) cycles, 0.03 at sigma = 0.01). With the
-        all-stage pattern each stage moves by length / sqrt(N) in every reading instead of the
-        whole length in one reading of N: the same information per reading and the same cost
-        in power (measured: sqrt(N) times the length lost 7 % of the power at sigma = 0.01)."""
+        signal above the noise: ``noisy_dither_factor`` sqrt(sigma) cycles, 0.03 at sigma =
+        0.01). With the all-stage pattern each stage moves by length / sqrt(N) in every reading
+        instead of the whole length in one reading of N: the same information per reading and
+        the same cost in power (measured: sqrt(N) times the length lost 7 % of the power at
+        sigma = 0.01)."""
         noise = max(self.params.detector_noise**2, self._noise_var or 0.0) ** 0.5
         drift = self.params.drift_dither_gain * float(np.max(np.abs(self.drift)))
-        return max(self.params.hold_dither_cycles, 0.3 * noise**0.5, drift)
+        return max(
+            self.params.hold_dither_cycles, self.params.noisy_dither_factor * noise**0.5, drift
+        )
 
     def _tolerance(self, base: float | None = None) -> float:
         """Mean squared residual that still counts as a fit: the base tolerance plus three times
@@ -463,8 +484,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         readings weigh by :meth:`_reading_sd`, the walk by :meth:`_walk_sigma`."""
         p = self.params
         if drift_prior is None:
-            prior = p.noisy_drift_prior_cycles if self._noisy() else p.drift_prior_cycles
-            drift_prior = np.full(drift.shape, prior)
+            drift_prior = np.full(drift.shape, self._drift_prior())
         return fit.fit_paths(
             self._fit_stacker,
             self.period_fs,

@@ -62,6 +62,11 @@ def knot_starts(predicted, drift, age, knots, ratio: bool) -> np.ndarray:
     return path0
 
 
+#: With a budget that cuts the knot test short on a noisy detector, one test in this many is run
+#: (and timed) again; the others are left out (:meth:`KnotTest._knot_test_skipped`).
+KNOT_RETRY = 20
+
+
 class KnotTest:
     """The knot test of :class:`~.core.PhaseTracker` (a mixin: it works on the tracker's
     state)."""
@@ -88,6 +93,19 @@ class KnotTest:
         self._revise = self._awaiting and changed
         return self._revise
 
+    def _knot_test_skipped(self, deadline) -> bool:
+        """Whether to leave this knot test out: on a noisy detector whose last test its budget
+        cut short (and so was inconclusive), the next ones would be cut too, and each blocks a
+        real-time loop for its whole compute (~50 ms on a 2-core machine: five readings of a
+        100 Hz rig). One test in ``KNOT_RETRY`` runs anyway and measures again."""
+        if deadline is None or self._knot_test_s is None or not self._noisy():
+            return False
+        self._knot_skips += 1
+        if self._knot_skips % KNOT_RETRY == 0:
+            return False
+        self.knot_tests_cut += 1
+        return True
+
     def _knot_deadline(self):
         """When the knot test and the fits after it must stop (``knot_budget_ms``), or None."""
         budget = self.params.knot_budget_ms
@@ -106,6 +124,9 @@ class KnotTest:
         fewer iterations (seen: a model 2 % off in wavelength, whose moves a well-started
         knot fit explained better than a three-iteration path fit: knots at the moves)."""
         p = self.params
+        if self._knot_test_skipped(deadline):
+            return x, drift, cost
+        started = time.perf_counter()
         knots = knot_hypotheses(self.stage, len(u), p.knot_readings, p.knot_start_cycles)
         m = knots[0].size
         path0 = knot_starts(predicted, self.drift, age, knots, ratio)
@@ -124,6 +145,14 @@ class KnotTest:
             path0=path0,
             deadline=deadline,
         )
+        if deadline is not None and time.perf_counter() >= deadline and self._noisy():
+            # Cut short on a noisy detector: hypotheses iterated once or twice win on the noise
+            # (lab, hard, the node's 4 ms against a ~50 ms test: 92.6-97.4 % of readings >= 0.95
+            # with late commands, 98.7-99.3 % with the cut test left inconclusive; docs/tracker.md)
+            self.knot_tests_cut += 1
+            self._knot_test_s = time.perf_counter() - started
+            return x, drift, cost
+        self._knot_test_s = None
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
         best_ratio, won = self._ratio, False
         penalty = p.noisy_knot_penalty if self._noisy() else p.knot_penalty

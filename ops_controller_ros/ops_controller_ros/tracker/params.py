@@ -110,6 +110,12 @@ class TrackerParams:
     hold_dither_cycles: float = _declare(
         0.012, "excursion while tracking (its length over the stages)", 0.0, 0.25, node=True
     )
+    # On a noisy detector the excursion is at least this many times the square root of the
+    # noise std (cycles): a reading near the optimum is quadratic in the error, so the excursion
+    # must lift its signal above the noise (docs/tracker.md).
+    noisy_dither_factor: float = _declare(
+        0.3, "tracking excursion on a noisy detector, times sqrt(noise std)", 0.0, 2.0
+    )
     hold_pattern: str = _declare(
         "all",
         "tracking excursion: all stages at once (Hadamard signs) or one at a time",
@@ -138,6 +144,16 @@ class TrackerParams:
     noisy_drift_prior_cycles: float = _declare(
         0.001, "... on a noisy detector (docs/tracker.md)", 0.0, low_open=True
     )
+    # ... and once no knot was taken for quiet_after readings: a drift that keeps its slope
+    # (hard mode's, a slow thermal one) is followed best by a stiffer estimate, a drift whose
+    # slope changes (extreme's knots, every 40-120 steps) by a looser one; the knots the
+    # tracker takes tell the two apart on a rig whose mode nobody knows (0: off).
+    quiet_drift_prior_cycles: float = _declare(
+        0.0005,
+        "... on a noisy detector with no knot taken for quiet_after readings (0: off)",
+        0.0,
+    )
+    quiet_after: int = _declare(100, "readings without a knot taken that count as quiet", 1)
     # The fastest drift the tracker believes, cycles per step (a fit beyond is clipped): on a
     # periodic landscape a drift near a cycle per step reads like none (seen: a stage's drift
     # estimate run up to 1.0 by knot hypotheses on a model 2 % off; extreme drifts <= 0.015).
