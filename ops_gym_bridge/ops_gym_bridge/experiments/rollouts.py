@@ -3,7 +3,7 @@
 * :func:`controller_episodes` drives any controller of :mod:`ops_controller_ros.controllers`
   (SPGD-PID, the tracker, ...) exactly as its node drives the simulator: absolute set-points, one
   reading (P_N / P_max and the detected slot energies) per command. Used by ``evaluate
-  --controller``, ``evaluate --record`` and ``scripts/spgd_baseline.py``.
+  --controller``, ``evaluate --record`` and ``ops-bench spgd-baseline``.
 * :func:`rollout_policy` runs a learned policy's batched ``predict`` on a vector env;
   :func:`rollout_runner` the same episodes with a runner that reads the readings itself (a
   switching model, :mod:`ops_controller_ros.policy_switch`).
