@@ -97,7 +97,7 @@ def test_a_quiet_drift_is_held_stiffer_until_a_knot_or_a_cut_knot_test():
     noisy._knot_tick = noisy._tick - 3  # a knot taken three readings ago
     assert noisy._drift_prior() == params.noisy_drift_prior_cycles
     noisy._knot_tick = -(10**9)
-    noisy._knot_test_s = 0.05  # the last knot test was cut short
+    noisy._knot_cut_short = True  # the last knot test was cut short
     assert noisy._drift_prior() == params.noisy_drift_prior_cycles
     clean = PhaseTracker(make_config(5, "hard", "test"), params, seed=2)
     clean._tick = params.quiet_after + 5

@@ -126,8 +126,9 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self.false_locks = 0  # locks dropped for that
         self.calibration_resets = 0
         self.knots = 0  # knot hypotheses taken while tracking
-        self.knot_tests_cut = 0  # knot tests its budget cut short on a noisy detector: no knot
-        self._knot_test_s = None  # the last knot test's seconds, when its budget cut it short
+        # knot tests on a noisy detector its budget cut short or left out: no knot taken
+        self.knot_tests_cut = 0
+        self._knot_cut_short = False  # the last knot test run was cut short (knots.py)
         self._knot_skips = 0
         self.hops = 0  # whole-cycle moves made to measure the wavelength
         self._hop = None  # (stage, cycles) of the move in the command just sent
@@ -342,7 +343,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         # Quiet only where a knot would be seen: not while the knot tests are cut short (a
         # real-time budget on a slow machine, docs/tracker.md): over DDS, `lab`, the stiff prior
         # with no knot test lost the lock for 8 minutes of 10 when the drift turned.
-        quiet = self._tick - self._knot_tick >= p.quiet_after and self._knot_test_s is None
+        quiet = self._tick - self._knot_tick >= p.quiet_after and not self._knot_cut_short
         if quiet and p.quiet_drift_prior_cycles:
             return p.quiet_drift_prior_cycles
         return p.noisy_drift_prior_cycles
