@@ -42,6 +42,7 @@ TOOLS: dict[str, Tool] = {
     "tracker-compute": Tool("tracker_compute", "the tracker's compute per reading (100 Hz budget)"),
     "tracker-dds": Tool("tracker_dds", "the tracker node over DDS: time to lock"),
     "tracker-knots": Tool("tracker_knots", "where the tracker loses readings in extreme mode"),
+    "tracker-late": Tool("tracker_late", "the tracker in process with late commands, as over DDS"),
     "tracker-wavelength": Tool("tracker_wavelength", "the tracker on rigs off 1030 nm"),
     "training": Tool("training", "training speed and learning of hyper-parameter sets"),
     "two-hosts": Tool("two_hosts", "the closed loop with sim and SPGD on one host or two"),
