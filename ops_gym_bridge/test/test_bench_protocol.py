@@ -183,3 +183,12 @@ def test_the_benchmark_evaluates_a_held_model_with_its_hold(tmp_path):
     plain = bench_worker.evaluate_run(spec, old)
     assert "hold_steps" not in plain and bench_worker.subject_of(spec, old).hold_steps == 1
     assert plain["splits"]["test"]["curve_mean"] == bare["curve_mean"]
+    # Figure 17's traces: the held model holds there too, and on the run's rig.
+    traced = bench_worker.evaluate_run({**spec, "traces": True}, held)["traces"]
+    assert traced["steps"] == sorted(bench_worker.TRACE_STEPS)  # every one even: a decision
+    assert traced != bench_worker.record_traces(held, spec, hold_steps=1)
+    coarse = bench_worker.record_traces(
+        held, {**spec, "rig": {"trace_adc_bits": 3, "trace_full_scale": 1.25}}, hold_steps=2
+    )
+    levels = np.unique(np.round(np.concatenate(coarse["trace"]), 4))
+    assert 1 < levels.size <= 2**3  # the run's 3-bit digitizer drew them

@@ -122,9 +122,11 @@ def subject_of(spec: dict, policy=None):
     )
 
 
-def record_traces(policy, spec: dict) -> dict[str, Any]:
-    """One testing-environment episode from a random start: the output intensity trace at
-    :data:`TRACE_STEPS` (Figure 17)."""
+def record_traces(policy, spec: dict, hold_steps: int = 1) -> dict[str, Any]:
+    """One testing-environment episode from a random start, on the run's rig: the output
+    intensity trace at :data:`TRACE_STEPS` (Figure 17). A model that holds its decisions
+    (``hold_steps`` k, resolved) decides on one reading in k, as it is evaluated; its traces are
+    those of the first decision at or after each of the steps (``steps`` says which)."""
     from ops_sim_ros import OpsEnv
 
     steps = max(TRACE_STEPS)
@@ -134,18 +136,24 @@ def record_traces(policy, spec: dict) -> dict[str, Any]:
         split="test",
         max_episode_steps=max(steps, 1),
         observation_options=observation_options(spec),
+        hold_steps=hold_steps,
         **env_overrides(spec),
     )
     try:
         obs, info = env.reset(seed=int(spec["eval"]["seeds"][0]))
         out = {"steps": [], "power": [], "trace": []}
-        for t in range(steps + 1):
-            if t in TRACE_STEPS:
+        wanted = sorted(TRACE_STEPS)
+        t = 0  # simulator steps taken
+        while wanted:
+            if t >= wanted[0]:
+                while wanted and t >= wanted[0]:
+                    wanted.pop(0)
                 out["steps"].append(t)
                 out["power"].append(round(float(info["power"]), 5))
                 out["trace"].append([round(float(x), 5) for x in env.trace()])
-            if t < steps:
+            if wanted:
                 obs, _, _, _, info = env.step(policy.predict(obs))
+                t = min(t + env.hold_steps, steps)
         return out
     finally:
         env.close()
@@ -173,7 +181,7 @@ def evaluate_run(spec: dict, policy=None) -> dict[str, Any]:
             transfer = subject.with_mode(mode).evaluate(("test",), seeds, episodes, steps)
             result["transfer"][mode] = transfer["test"]
     if policy is not None and spec.get("traces"):
-        result["traces"] = record_traces(policy, spec)
+        result["traces"] = record_traces(policy, spec, subject.hold_steps)
     result["wall_s"] = round(time.monotonic() - t0, 2)
     return result
 
