@@ -25,8 +25,8 @@
 # tenth of the fast set's, and learning_starts 20,000: a fine-tune first fills its new replay
 # buffer with that many steps of its own actions, without updating; and critic_warmup 100,000:
 # then only the critic learns, the actor and its entropy coefficient held). INIT= (empty)
-# trains from scratch with the same options. HOLD=auto (default) trains with held decisions;
-# HOLD= (empty) without. Earlier runs, kept under runs/issue32: n5_hard_lab (no hold: 0.04
+# trains from scratch with the same options (OBS_HISTORY frames of memory, default 4).
+# HOLD=auto (default) trains with held decisions; HOLD= (empty) without. Earlier runs, kept under runs/issue32: n5_hard_lab (no hold: 0.04
 # after 320,000 steps), n5_hard_lab_held (hold, learning rate 3e-4, no warm buffer: 0.715 on the 100
 # episodes above), n5_hard_lab_warm (warm buffer: its rollouts fell 0.85 -> 0.69 as the actor
 # followed the old critic) and n5_hard_lab_cw (critic warm-up with a free entropy coefficient:
@@ -40,6 +40,9 @@ MINUTES=${MINUTES:-50}
 TOTAL=${TOTAL:-9000000}
 INIT=${INIT-models/n5_hard}
 HOLD=${HOLD-auto}
+# From scratch only (a fine-tune keeps its model's memory): frames of memory. The tracker fits
+# 10 readings on a noisy detector; 4 frames of 6-12-bit readings average the noise less.
+OBS_HISTORY=${OBS_HISTORY:-4}
 # How a fine-tune learns: a tenth of the fast set's learning rate, and 20,000 steps of the model's
 # own actions in its new replay buffer before the first update (train: a fine-tune's
 # learning_starts)
@@ -64,6 +67,6 @@ elif [ -n "$INIT" ]; then
     train --init-from "$INIT" --mode hard --realism lab --rig-randomize lab "${hold[@]}" \
         $TUNE --seed 0 --timesteps "$left"
 else
-    train --hyperparams-set fast --stage 5 --mode hard --obs-history 4 --reward nines \
+    train --hyperparams-set fast --stage 5 --mode hard --obs-history "$OBS_HISTORY" --reward nines \
         --realism lab --rig-randomize lab "${hold[@]}" --seed 0 --timesteps "$TOTAL"
 fi

@@ -88,14 +88,17 @@ def test_a_knot_test_cut_short_on_a_noisy_detector_takes_no_knot():
 
 def test_a_quiet_drift_is_held_stiffer_until_a_knot_or_a_cut_knot_test():
     """On a noisy detector the drift prior is quiet_drift_prior_cycles once no knot was taken
-    for quiet_after readings, noisy_drift_prior_cycles after a knot, and never the quiet one
-    while the knot tests are cut short (no knot could be seen); a clean detector keeps its own."""
+    for quiet_after readings, knotted_drift_prior_cycles within as many readings of a knot,
+    and never the quiet one while the knot tests are cut short (no knot could be seen: then
+    noisy_drift_prior_cycles); a clean detector keeps its own."""
     params = TrackerParams()
     noisy = PhaseTracker(make_config(5, "hard", "test", realism="lab"), params, seed=2)
     noisy._tick = params.quiet_after + 5
     assert noisy._drift_prior() == params.quiet_drift_prior_cycles
-    noisy._knot_tick = noisy._tick - 3  # a knot taken three readings ago
-    assert noisy._drift_prior() == params.noisy_drift_prior_cycles
+    noisy._knot_tick = noisy._tick - 3  # a knot taken three readings ago: the slope changes
+    assert noisy._drift_prior() == params.knotted_drift_prior_cycles
+    noisy._knot_tick = noisy._tick - params.quiet_after  # long ago: quiet again
+    assert noisy._drift_prior() == params.quiet_drift_prior_cycles
     noisy._knot_tick = -(10**9)
     noisy._knot_cut_short = True  # the last knot test was cut short
     assert noisy._drift_prior() == params.noisy_drift_prior_cycles
@@ -109,3 +112,19 @@ def test_a_quiet_drift_is_held_stiffer_until_a_knot_or_a_cut_knot_test():
     )
     off._tick = params.quiet_after + 5
     assert off._drift_prior() == params.noisy_drift_prior_cycles
+
+
+def test_a_noisy_detector_looks_for_a_knot_further_back():
+    """A knot shows through the noise readings later: on a noisy detector a smaller jump of the
+    path asks for the knot test (noisy_knot_walk_sigmas), which places the knot among the
+    window's last noisy_knot_readings readings; a clean detector keeps knot_walk_sigmas and
+    knot_readings (the node's knot test there stays within its 4 ms)."""
+    params = TrackerParams()
+    assert params.noisy_knot_readings > params.knot_readings
+    noisy = PhaseTracker(make_config(5, "extreme", "test", realism="lab"), params, seed=3)
+    clean = PhaseTracker(make_config(5, "extreme", "test"), params, seed=3)
+    assert noisy._knot_readings() == params.noisy_knot_readings
+    assert clean._knot_readings() == params.knot_readings
+    assert noisy._jump_sigmas() == params.noisy_knot_walk_sigmas
+    assert clean._jump_sigmas() == params.knot_walk_sigmas
+    assert noisy.window_length >= params.noisy_knot_readings + 1  # a reading before the knot

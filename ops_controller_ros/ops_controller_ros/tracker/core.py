@@ -333,17 +333,26 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         bits = np.array([bin(row & c).count("1") & 1 for c in cols])
         return (1.0 - 2.0 * bits) / np.sqrt(n)
 
+    def _jump_sigmas(self) -> float:
+        """A path step this many walk stds off the drift asks for the knot test."""
+        p = self.params
+        return p.noisy_knot_walk_sigmas if self._noisy() else p.knot_walk_sigmas
+
     def _drift_prior(self) -> float:
         """How far one window may move the drift estimate (std, cycles per step): looser on a
-        clean detector, stiff on a noisy one, stiffer still while no knot has been taken for
-        ``quiet_after`` readings and the knot tests run to their end (see TrackerParams)."""
+        clean detector, stiff on a noisy one; there looser again within ``quiet_after``
+        readings of a knot taken, and stiffer still while no knot has been taken for as long
+        and the knot tests run to their end (see TrackerParams)."""
         p = self.params
         if not self._noisy():
             return p.drift_prior_cycles
         # Quiet only where a knot would be seen: not while the knot tests are cut short (a
         # real-time budget on a slow machine, docs/tracker.md): over DDS, `lab`, the stiff prior
         # with no knot test lost the lock for 8 minutes of 10 when the drift turned.
-        quiet = self._tick - self._knot_tick >= p.quiet_after and not self._knot_cut_short
+        since_knot = self._tick - self._knot_tick
+        if since_knot < p.quiet_after and p.knotted_drift_prior_cycles:
+            return p.knotted_drift_prior_cycles  # the drift's slope changes: follow it
+        quiet = since_knot >= p.quiet_after and not self._knot_cut_short
         if quiet and p.quiet_drift_prior_cycles:
             return p.quiet_drift_prior_cycles
         return p.noisy_drift_prior_cycles
@@ -523,7 +532,9 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         if (
             hop is None
             and p.knot_prior_cycles > 0
-            and (cost > self._tolerance(p.knot_tolerance) or self._walk_jump() > p.knot_walk_sigmas)
+            and (
+                cost > self._tolerance(p.knot_tolerance) or self._walk_jump() > self._jump_sigmas()
+            )
         ):
             # A knot of one stage's drift? Fit the window under one hypothesis per stage, knot
             # position and side (_knot_fit), and keep the best if it explains the readings

@@ -106,6 +106,11 @@ class KnotTest:
         self.knot_tests_cut += 1
         return True
 
+    def _knot_readings(self) -> int:
+        """How many of the window's last readings a knot is looked for in."""
+        p = self.params
+        return p.noisy_knot_readings if self._noisy() else p.knot_readings
+
     def _knot_deadline(self):
         """When the knot test and the fits after it must stop (``knot_budget_ms``), or None."""
         budget = self.params.knot_budget_ms
@@ -114,10 +119,11 @@ class KnotTest:
     def _knot_fit(self, predicted, x, drift, cost, u, y, age, ratio=False, deadline=None):
         """The best of the present fit (x, drift, cost) and the knot hypotheses, all fitted at
         once: each stage's slope changed from each of the last ``knot_readings`` readings of the
-        window on, started either way (one reading is even in the change); the steps before the
-        knot keep the present drift. Taken in turn, a hypothesis wins only if its whole cost plus
-        ``knot_penalty`` (``noisy_knot_penalty`` on a noisy detector) is below the best so far
-        (the path and period error of the winner are kept).
+        window on (``noisy_knot_readings`` on a noisy detector), started either way (one reading
+        is even in the change); the steps before the knot keep the present drift. Taken in turn,
+        a hypothesis wins only if its whole cost plus ``knot_penalty`` (``noisy_knot_penalty``
+        on a noisy detector) is below the best so far (the path and period error of the winner
+        are kept).
 
         The first start is no knot (its knot after the window): the present fit iterated as
         long as the hypotheses, so that a knot must beat the best fit without one, not a fit of
@@ -126,7 +132,7 @@ class KnotTest:
         p = self.params
         if self._knot_test_skipped(deadline):
             return x, drift, cost
-        knots = knot_hypotheses(self.stage, len(u), p.knot_readings, p.knot_start_cycles)
+        knots = knot_hypotheses(self.stage, len(u), self._knot_readings(), p.knot_start_cycles)
         m = knots[0].size
         path0 = knot_starts(predicted, self.drift, age, knots, ratio)
         iterations = p.noisy_knot_iterations if self._noisy() else p.knot_iterations

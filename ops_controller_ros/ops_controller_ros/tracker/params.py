@@ -154,6 +154,13 @@ class TrackerParams:
         0.0,
     )
     quiet_after: int = _declare(100, "readings without a knot taken that count as quiet", 1)
+    # ... and the other way: within quiet_after readings of a knot taken, a drift whose slope
+    # changes is followed by a looser estimate (lab, extreme, tuning seeds: 0.962 -> 0.970
+    # with knot_walk_sigmas 1.5 beside it; hard unchanged, 0.991). Never where no knot is
+    # taken, as over DDS with the knot tests cut (0: as noisy_drift_prior_cycles).
+    knotted_drift_prior_cycles: float = _declare(
+        0.002, "... on a noisy detector within quiet_after readings of a knot taken (0: off)", 0.0
+    )
     # The fastest drift the tracker believes, cycles per step (a fit beyond is clipped): on a
     # periodic landscape a drift near a cycle per step reads like none (seen: a stage's drift
     # estimate run up to 1.0 by knot hypotheses on a model 2 % off; extreme drifts <= 0.015).
@@ -203,6 +210,11 @@ class TrackerParams:
     )
     knot_start_cycles: float = _declare(0.02, "the knot fits start this far off the prediction")
     knot_readings: int = _declare(3, "a knot is looked for in the window's last readings", 1)
+    # ... on a noisy detector: a knot shows through the noise readings later, often after the
+    # last three, and a test that cannot place it there takes a wrong stage or side (lab,
+    # extreme, tuning seeds 8101-8120 x 5: 0.941 with 3, 0.962 with 5; docs/tracker.md). A clean
+    # detector keeps 3: the node's 4 ms cuts its knot test short, and 5 is 60 % more hypotheses.
+    noisy_knot_readings: int = _declare(5, "... on a noisy detector", 1)
     knot_iterations: int = _declare(
         6, "LM iterations of the knot hypotheses per knot test", 1, 100, node=True
     )
@@ -224,6 +236,9 @@ class TrackerParams:
     knot_walk_sigmas: float = _declare(
         2.0, "a path step this far off the drift (walk stds) asks for the knot test"
     )
+    # ... on a noisy detector, where a knot shows late through the noise (kept at 2.0 on a
+    # clean one: each test is compute the node's 4 ms budget cuts short)
+    noisy_knot_walk_sigmas: float = _declare(1.5, "... on a noisy detector")
     knot_penalty: float = _declare(4.0, "a knot hypothesis wins if its cost + this is lowest")
     # ... on a noisy detector (noise std >= noisy_threshold) the knot test fires on the noise
     # far more often, and a hypothesis must win by this much (measured in docs/tracker.md)
