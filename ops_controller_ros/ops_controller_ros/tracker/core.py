@@ -333,11 +333,6 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         bits = np.array([bin(row & c).count("1") & 1 for c in cols])
         return (1.0 - 2.0 * bits) / np.sqrt(n)
 
-    def _jump_sigmas(self) -> float:
-        """A path step this many walk stds off the drift asks for the knot test."""
-        p = self.params
-        return p.noisy_knot_walk_sigmas if self._noisy() else p.knot_walk_sigmas
-
     def _drift_prior(self) -> float:
         """How far one window may move the drift estimate (std, cycles per step): looser on a
         clean detector, stiff on a noisy one; there looser again within ``quiet_after``

@@ -172,6 +172,11 @@ class KnotTest:
             self._knot_tick = self._tick
         return best
 
+    def _jump_sigmas(self) -> float:
+        """A path step this many walk stds off the drift asks for the knot test."""
+        p = self.params
+        return p.noisy_knot_walk_sigmas if self._noisy() else p.knot_walk_sigmas
+
     def _walk_jump(self) -> float:
         """The largest move of the fitted path over its last step, away from the drift, in
         units of the walk's std (a knot shows here before the readings' residual grows)."""
