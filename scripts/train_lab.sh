@@ -26,11 +26,12 @@
 # buffer with that many steps of its own actions, without updating; and critic_warmup 100,000:
 # then only the critic learns, the actor and its entropy coefficient held). INIT= (empty)
 # trains from scratch with the same options (OBS_HISTORY frames of memory, default 4).
-# HOLD=auto (default) trains with held decisions; HOLD= (empty) without. Earlier runs, kept under runs/issue32: n5_hard_lab (no hold: 0.04
-# after 320,000 steps), n5_hard_lab_held (hold, learning rate 3e-4, no warm buffer: 0.715 on the 100
-# episodes above), n5_hard_lab_warm (warm buffer: its rollouts fell 0.85 -> 0.69 as the actor
-# followed the old critic) and n5_hard_lab_cw (critic warm-up with a free entropy coefficient:
-# 0.83 -> 0.13 when the actor was released). Models of the authors' observation are no start
+# HOLD=auto (default) trains with held decisions; HOLD= (empty) without. Earlier runs, kept
+# under runs/issue32: n5_hard_lab (no hold: 0.04 after 320,000 steps), n5_hard_lab_held (hold,
+# learning rate 3e-4, no warm buffer: 0.715 on the 100 episodes above), n5_hard_lab_warm (warm
+# buffer: its rollouts fell 0.85 -> 0.69 as the actor followed the old critic) and
+# n5_hard_lab_cw (critic warm-up with a free entropy coefficient: 0.83 -> 0.13 when the actor
+# was released). Models of the authors' observation are no start
 # here: it holds the actual delay-line lengths, which no rig measures (models/README.md).
 cd "$(dirname "$0")/.."
 source setup.bash >/dev/null

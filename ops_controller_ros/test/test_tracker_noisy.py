@@ -123,8 +123,8 @@ def test_a_noisy_detector_looks_for_a_knot_further_back():
     assert params.noisy_knot_readings > params.knot_readings
     noisy = PhaseTracker(make_config(5, "extreme", "test", realism="lab"), params, seed=3)
     clean = PhaseTracker(make_config(5, "extreme", "test"), params, seed=3)
-    assert noisy._knot_readings() == params.noisy_knot_readings
-    assert clean._knot_readings() == params.knot_readings
-    assert noisy._jump_sigmas() == params.noisy_knot_walk_sigmas
-    assert clean._jump_sigmas() == params.knot_walk_sigmas
+    assert noisy._knot_setting("knot_readings") == params.noisy_knot_readings
+    assert clean._knot_setting("knot_readings") == params.knot_readings
+    assert noisy._knot_setting("knot_walk_sigmas") == params.noisy_knot_walk_sigmas
+    assert clean._knot_setting("knot_walk_sigmas") == params.knot_walk_sigmas
     assert noisy.window_length >= params.noisy_knot_readings + 1  # a reading before the knot

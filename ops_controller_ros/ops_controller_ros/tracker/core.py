@@ -528,7 +528,8 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             hop is None
             and p.knot_prior_cycles > 0
             and (
-                cost > self._tolerance(p.knot_tolerance) or self._walk_jump() > self._jump_sigmas()
+                cost > self._tolerance(p.knot_tolerance)
+                or self._walk_jump() > self._knot_setting("knot_walk_sigmas")
             )
         ):
             # A knot of one stage's drift? Fit the window under one hypothesis per stage, knot

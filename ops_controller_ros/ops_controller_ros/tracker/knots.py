@@ -106,10 +106,10 @@ class KnotTest:
         self.knot_tests_cut += 1
         return True
 
-    def _knot_readings(self) -> int:
-        """How many of the window's last readings a knot is looked for in."""
-        p = self.params
-        return p.noisy_knot_readings if self._noisy() else p.knot_readings
+    def _knot_setting(self, name: str):
+        """The knot test's setting ``name`` for this detector: ``noisy_<name>`` on a noisy one
+        (``knot_readings``, ``knot_walk_sigmas``, ``knot_iterations``, ``knot_penalty``)."""
+        return getattr(self.params, f"noisy_{name}" if self._noisy() else name)
 
     def _knot_deadline(self):
         """When the knot test and the fits after it must stop (``knot_budget_ms``), or None."""
@@ -132,10 +132,11 @@ class KnotTest:
         p = self.params
         if self._knot_test_skipped(deadline):
             return x, drift, cost
-        knots = knot_hypotheses(self.stage, len(u), self._knot_readings(), p.knot_start_cycles)
+        readings = self._knot_setting("knot_readings")
+        knots = knot_hypotheses(self.stage, len(u), readings, p.knot_start_cycles)
         m = knots[0].size
         path0 = knot_starts(predicted, self.drift, age, knots, ratio)
-        iterations = p.noisy_knot_iterations if self._noisy() else p.knot_iterations
+        iterations = self._knot_setting("knot_iterations")
         prune = (p.knot_prune_after, p.knot_keep) if p.knot_keep else None
         fits = self._fit_paths(
             path0[:, -1],
@@ -160,7 +161,7 @@ class KnotTest:
         self._knot_cut_short = False
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
         best_ratio, won = self._ratio, False
-        penalty = p.noisy_knot_penalty if self._noisy() else p.knot_penalty
+        penalty = self._knot_setting("knot_penalty")
         for i in range(m):
             if fits.objective[i] + (penalty if i else 0.0) < best_obj:
                 best = (fits.x[i], fits.drift[i], float(fits.data_cost[i]))
@@ -171,11 +172,6 @@ class KnotTest:
         if won:
             self._knot_tick = self._tick
         return best
-
-    def _jump_sigmas(self) -> float:
-        """A path step this many walk stds off the drift asks for the knot test."""
-        p = self.params
-        return p.noisy_knot_walk_sigmas if self._noisy() else p.knot_walk_sigmas
 
     def _walk_jump(self) -> float:
         """The largest move of the fitted path over its last step, away from the drift, in
