@@ -184,7 +184,10 @@ def test_tracker_through_the_rig_is_back_within_2_s_of_a_5_s_scope_outage(
     tracker.wait_for("closing the loop", 30)
     started = time.monotonic()
     observer.wait_until(
-        lambda: _back_after(observer, started, 50) is not None, 60, "50 readings >= 0.95"
+        lambda: _back_after(observer, started, 50) is not None,
+        60,
+        "50 readings >= 0.95",
+        logs=(rig, tracker),
     )
 
     pause_s = 5.0
@@ -192,7 +195,10 @@ def test_tracker_through_the_rig_is_back_within_2_s_of_a_5_s_scope_outage(
     _send_scpi(port, f":SIMulate:PAUSe {pause_s}")
     back = paused_at + pause_s  # the scope answers again
     observer.wait_until(
-        lambda: _back_after(observer, back) is not None, 30, "10 readings >= 0.95 after the pause"
+        lambda: _back_after(observer, back) is not None,
+        30,
+        "10 readings >= 0.95 after the pause",
+        logs=(rig, tracker),
     )
     recovered_s = _back_after(observer, back)
     with observer.lock:
