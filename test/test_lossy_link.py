@@ -19,7 +19,13 @@ import time
 import numpy as np
 import pytest
 from ops_bench.hosts import NetnsUnavailable, RelayedHosts, netns_unavailable_reason
-from ops_bench.processes import assert_no_traceback, executable, ros2_command, sim_command
+from ops_bench.processes import (
+    assert_no_traceback,
+    executable,
+    log_tails,
+    ros2_command,
+    sim_command,
+)
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
@@ -55,9 +61,7 @@ def _wait(condition, timeout: float, what: str, *procs):
     while not condition():
         for p in procs:
             assert p.popen.poll() is None, f"{' '.join(p.args)} exited:\n{p.output}"
-        assert time.monotonic() < deadline, f"timed out waiting for {what}:\n" + "\n".join(
-            p.output[-3000:] for p in procs
-        )
+        assert time.monotonic() < deadline, f"timed out waiting for {what}:{log_tails(procs)}"
         time.sleep(0.1)
 
 

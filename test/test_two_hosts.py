@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pytest
 from ops_bench.hosts import make_two_hosts
-from ops_bench.processes import PYTHON, REPO, assert_no_traceback, executable
+from ops_bench.processes import PYTHON, REPO, assert_no_traceback, executable, log_tails
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
@@ -71,8 +71,9 @@ def wait_until(condition, timeout: float, what: str, *procs):
                     f"{' '.join(p.args)} exited while waiting for {what}:\n{p.output}"
                 )
         if time.monotonic() > deadline:
-            logs = "\n".join(f"--- {' '.join(p.args)}\n{p.output[-3000:]}" for p in procs)
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}\n{logs}")
+            raise AssertionError(
+                f"timed out after {timeout} s waiting for {what}{log_tails(procs)}"
+            )
         time.sleep(0.1)
 
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import contextlib
 import time
 
+from ops_bench.processes import log_tails
+
 
 class TopicObserver:
     """An rclpy node in the test process: records the simulator's outputs, sends commands.
@@ -73,13 +75,12 @@ class TopicObserver:
 
     def wait_until(self, condition, timeout: float = 30.0, what: str = "condition", logs=()):
         """Poll ``condition`` until it holds; past ``timeout`` s fail naming ``what``, with the
-        last lines of the logs of ``logs`` (processes with ``log_path`` and ``output``): a
-        closed loop that did not get there says why in the failure itself."""
+        end of the output of ``logs`` (:class:`~ops_bench.processes.Process`)."""
         deadline = time.monotonic() + timeout
         while not condition():
             if time.monotonic() > deadline:
                 raise AssertionError(
-                    f"timed out after {timeout} s waiting for {what}{_log_tails(logs)}"
+                    f"timed out after {timeout} s waiting for {what}{log_tails(logs)}"
                 )
             time.sleep(0.02)
 
@@ -102,12 +103,3 @@ class TopicObserver:
         self.node.destroy_node()
         self._rclpy.try_shutdown(context=self.context)
         self._thread.join(timeout=5.0)
-
-
-def _log_tails(procs, lines: int = 40) -> str:
-    """The last ``lines`` lines of each process's log, headed by its file name."""
-    return "".join(
-        f"\n--- last {lines} lines of {proc.log_path.name} ---\n"
-        + "\n".join(proc.output.splitlines()[-lines:])
-        for proc in procs
-    )

@@ -92,6 +92,12 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
+def log_tails(procs, chars: int = 3000) -> str:
+    """The end of each process's output, headed by its command: what a wait that failed on
+    them prints, so that a closed loop that did not get there says why."""
+    return "".join(f"\n--- {' '.join(p.args)}\n{p.output[-chars:]}" for p in procs)
+
+
 class Process:
     """A started command with its output in a file."""
 
