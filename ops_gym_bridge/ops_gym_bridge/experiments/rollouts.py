@@ -32,10 +32,19 @@ def episode_seed(seed: int, episode: int) -> int:
 
 
 def controller_episodes(
-    env, controller: str, params: dict[str, Any], nominal, episodes: int, steps: int, seed: int
+    env,
+    controller: str,
+    params: dict[str, Any],
+    nominal,
+    episodes: int,
+    steps: int,
+    seed: int,
+    on_step=None,
 ) -> dict[str, np.ndarray]:
     """``episodes`` episodes of ``controller`` on ``env`` (an OpsEnv, or a wrapper with
-    ``reset(seed=)`` and ``step_setpoints(setpoints_fs) -> StepResult``)."""
+    ``reset(seed=)`` and ``step_setpoints(setpoints_fs) -> StepResult``). ``on_step(episode,
+    step, ctl, env, result)``, if given, is called after the controller has taken each step's
+    reading: the studies of ``ops-bench`` look inside the controller and the simulator there."""
     from ops_controller_ros.controllers import make_controller, next_command
 
     power = np.empty((episodes, steps + 1))
@@ -53,6 +62,8 @@ def controller_episodes(
             ctl.observe(p, r.pulse_energies[0])
             power[e, t + 1] = p
             returns[e] += float(r.reward[0])
+            if on_step is not None:
+                on_step(e, t, ctl, env, r)
     return {"power": power, "returns": returns}
 
 

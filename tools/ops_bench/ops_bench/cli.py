@@ -43,10 +43,14 @@ TOOLS: dict[str, Tool] = {
     "tracker-dds": Tool("tracker_dds", "the tracker node over DDS: time to lock"),
     "tracker-knots": Tool("tracker_knots", "where the tracker loses readings in extreme mode"),
     "tracker-late": Tool("tracker_late", "the tracker in process with late commands, as over DDS"),
+    "tracker-knot-wake": Tool(
+        "tracker_knot_wake", "what a knot of the drift costs, reading by reading"
+    ),
     "tracker-wavelength": Tool("tracker_wavelength", "the tracker on rigs off 1030 nm"),
     "training": Tool("training", "training speed and learning of hyper-parameter sets"),
     "two-hosts": Tool("two_hosts", "the closed loop with sim and SPGD on one host or two"),
     "spgd-baseline": Tool("spgd_baseline", "SPGD-PID's episodes: figure and parameter sweep"),
+    "spgd-attempts": Tool("spgd_attempts", "SPGD-PID's climbs and restarts, attempt by attempt"),
     "setpoint-shift": Tool("setpoint_shift", "a learned policy started whole cycles away"),
     "figures": Tool("", "figures of the docs: ops-bench figures KIND, KIND one of"),
     "ship-model": Tool("ship_model", "ship a trained run as a model folder with its curve"),
