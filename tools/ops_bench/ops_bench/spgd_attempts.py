@@ -23,19 +23,16 @@ Usage (after `source setup.bash`):
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from ops_controller_ros.spgd import SpgdParams
 from ops_gym_bridge import cli_args
 from ops_gym_bridge.experiments.envs import EPISODE_STEPS
-from ops_gym_bridge.experiments.rollouts import controller_episodes
 from ops_sim_ros.config import MODES, REALISMS, make_config
-from ops_sim_ros.env import OpsEnv
 from ops_sim_ros.threads import limit_blas_threads
+
+from ops_bench import study
 
 STAGE = 5
 REACH = 0.9  # SpgdParams.restart_below: what a restart gives up on
@@ -101,20 +98,9 @@ def run(latency: int, mode: str, realism: str, seeds, episodes: int, params: dic
     """SPGD's attempts on the rig with ``latency`` over ``seeds`` x ``episodes`` episodes."""
     rig = cli_args.resolve_rig(realism, [f"latency_steps={latency}"])
     cfg = make_config(STAGE, mode, "test", episode_steps=EPISODE_STEPS, **rig)
-    recorders, finals = [], []
-    for seed in seeds:
-        env = OpsEnv.from_config(cfg, max_episode_steps=EPISODE_STEPS)
-        rec = RestartRecorder(episodes, EPISODE_STEPS)
-        try:
-            out = controller_episodes(env, "spgd", params, cfg, episodes, EPISODE_STEPS, seed, rec)
-        finally:
-            env.close()
-        recorders.append(rec)
-        finals.extend(out["power"][:, -1].tolist())
-    merged = RestartRecorder(0, EPISODE_STEPS)
-    merged.power = np.concatenate([r.power for r in recorders])
-    merged.restarts = np.concatenate([r.restarts for r in recorders])
-    return summarize(merged, finals)
+    rec = RestartRecorder(len(seeds) * episodes, EPISODE_STEPS)
+    finals = study.recorded_episodes(cfg, "spgd", params, seeds, episodes, rec)
+    return summarize(rec, finals)
 
 
 def _f(value, spec: str, scale: float = 1.0) -> str:
@@ -174,23 +160,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--latencies", type=latency_type, nargs="+", default=[0, 1])
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(8101, 8301)))
     ap.add_argument("--episodes", type=cli_args.positive_int, default=5, help="per seed")
-    ap.add_argument(
-        "--param", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
-        help="SPGD-PID parameters; repeatable",
-    )  # fmt: skip
-    ap.add_argument("--out", type=Path, help="also write the figures to this JSON file")
+    study.add_options(ap, "SPGD-PID")
     args = ap.parse_args(argv)
-    try:
-        args.params = cli_args.parse_key_values(args.param, "--param")
-        SpgdParams(**args.params)  # unknown names and values out of range, before any run
-    except (TypeError, ValueError) as exc:
-        ap.error(f"--param: {exc}")
+    study.check_params(ap, args, SpgdParams)
     return args
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    given = sys.argv[1:] if argv is None else list(argv)
     limit_blas_threads()
     results = {}
     for latency in dict.fromkeys(args.latencies):
@@ -207,7 +184,6 @@ def main(argv=None) -> int:
     print(table(results))
     if args.out:
         out = {
-            "command": "ops-bench spgd-attempts " + " ".join(given),
             "settings": {
                 "stage": STAGE,
                 "mode": args.mode,
@@ -219,9 +195,7 @@ def main(argv=None) -> int:
             },
             "results": {str(k): v for k, v in results.items()},
         }
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(out, indent=1) + "\n")
-        print(f"wrote {args.out}")
+        study.write_figures(args.out, "spgd-attempts", argv, out)
     return 0
 
 

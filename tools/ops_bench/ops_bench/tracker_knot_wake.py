@@ -24,19 +24,16 @@ Usage (after `source setup.bash`):
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from ops_controller_ros.tracker import TrackerParams
 from ops_gym_bridge import cli_args
 from ops_gym_bridge.experiments.envs import EPISODE_STEPS
-from ops_gym_bridge.experiments.rollouts import controller_episodes
 from ops_sim_ros.config import MODES, REALISMS, make_config
-from ops_sim_ros.env import OpsEnv
 from ops_sim_ros.threads import limit_blas_threads
+
+from ops_bench import study
 
 STAGE = 5
 READINGS = (0, 2, 3, 4, 5, 6, 8, 10, 12, 16)
@@ -113,22 +110,11 @@ def run(
     """The wake on one rig over ``seeds`` x ``episodes`` episodes (the evaluation's seeds)."""
     rig = cli_args.resolve_rig(realism, None)
     cfg = make_config(STAGE, mode, "test", episode_steps=steps, **rig)
-    recorders, finals = [], []
-    for seed in seeds:
-        env = OpsEnv.from_config(cfg, max_episode_steps=steps)
-        rec = WakeRecorder(episodes, steps, cfg.optical_period_fs)
-        try:
-            out = controller_episodes(env, "tracker", params, cfg, episodes, steps, seed, rec)
-        finally:
-            env.close()
-        recorders.append(rec)
-        finals.extend(out["power"][:, -1].tolist())
+    rec = WakeRecorder(len(seeds) * episodes, steps, cfg.optical_period_fs)
+    finals = study.recorded_episodes(cfg, "tracker", params, seeds, episodes, rec)
     result = {"episodes": len(finals), "mean_final": float(np.mean(finals))}
     result["worst_final"] = float(np.min(finals))
-    merged = WakeRecorder(0, steps, cfg.optical_period_fs)
-    for name in ("power", "drift", "taken", "slope"):
-        setattr(merged, name, np.concatenate([getattr(r, name) for r in recorders]))
-    return {**result, **wake(merged, from_step, readings)}
+    return {**result, **wake(rec, from_step, readings)}
 
 
 def table(results: dict[str, dict], readings) -> str:
@@ -163,27 +149,18 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=list(READINGS),
         help="readings since a knot to report (each in 0-199)",
     )
-    ap.add_argument(
-        "--param", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
-        help="tracker parameters; repeatable",
-    )  # fmt: skip
-    ap.add_argument("--out", type=Path, help="also write the figures to this JSON file")
+    study.add_options(ap, "tracker")
     args = ap.parse_args(argv)
     if any(not 0 <= k < EPISODE_STEPS for k in args.readings):
         ap.error(f"--readings: each must be in 0-{EPISODE_STEPS - 1} (got {args.readings})")
     if args.from_step < 2 or args.from_step >= EPISODE_STEPS:
         ap.error(f"--from-step: must be in 2-{EPISODE_STEPS - 1} (got {args.from_step})")
-    try:
-        args.params = cli_args.parse_key_values(args.param, "--param")
-        TrackerParams(**args.params)  # unknown names and values out of range, before any run
-    except (TypeError, ValueError) as exc:
-        ap.error(f"--param: {exc}")
+    study.check_params(ap, args, TrackerParams)
     return args
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    given = sys.argv[1:] if argv is None else list(argv)
     limit_blas_threads()
     readings = sorted(set(args.readings))
     results = {}
@@ -202,7 +179,6 @@ def main(argv=None) -> int:
     print(table(results, readings))
     if args.out:
         out = {
-            "command": "ops-bench tracker-knot-wake " + " ".join(given),
             "settings": {
                 "stage": STAGE,
                 "mode": args.mode,
@@ -214,9 +190,7 @@ def main(argv=None) -> int:
             },
             "results": results,
         }
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(out, indent=1) + "\n")
-        print(f"wrote {args.out}")
+        study.write_figures(args.out, "tracker-knot-wake", argv, out)
     return 0
 
 

@@ -22,20 +22,19 @@ Usage (after `source setup.bash`):
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from ops_controller_ros.controllers import make_controller, next_command
 from ops_controller_ros.tracker import TrackerParams
-from ops_gym_bridge.cli_args import parse_key_values, positive_int
+from ops_gym_bridge.cli_args import positive_int
 from ops_gym_bridge.experiments.continuous import lock_figures
 from ops_sim_ros.config import MODES, REALISMS, make_config
 from ops_sim_ros.env import OpsEnv
 from ops_sim_ros.threads import limit_blas_threads
+
+from ops_bench import study
 
 STAGE = 5
 #: The late-command stream's seed is the run's seed + this (the scratch harness's offset).
@@ -96,27 +95,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--steps", type=positive_int, default=3000, help="readings per seed")
     ap.add_argument("--mode", choices=MODES, default="hard")
     ap.add_argument("--realism", choices=REALISMS, default="lab")
-    ap.add_argument(
-        "--param",
-        action="extend",
-        nargs="+",
-        default=[],
-        metavar="KEY=VALUE",
-        help="tracker parameters (the node's: knot_budget_ms=4.0); repeatable",
-    )
-    ap.add_argument("--out", type=Path, help="also write the figures to this JSON file")
+    study.add_options(ap, "tracker (the node's: knot_budget_ms=4.0)")
     args = ap.parse_args(argv)
-    try:
-        args.params = parse_key_values(args.param, "--param")
-        TrackerParams(**args.params)  # unknown names and values out of range, before any run
-    except (TypeError, ValueError) as exc:
-        ap.error(f"--param: {exc}")
+    study.check_params(ap, args, TrackerParams)
     return args
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    given = sys.argv[1:] if argv is None else list(argv)
     limit_blas_threads()  # as the node and evaluate (unless OPENBLAS_NUM_THREADS etc. is set)
     setting = f"{args.mode}, {args.realism}, p_late {args.p_late:g}, {args.steps} steps"
     setting += f", tracker {' '.join(args.param)}" if args.param else ""
@@ -148,7 +134,6 @@ def main(argv=None) -> int:
     )
     if args.out:
         out = {
-            "command": "ops-bench tracker-late " + " ".join(given),
             "settings": {
                 "stage": STAGE,
                 "mode": args.mode,
@@ -164,9 +149,7 @@ def main(argv=None) -> int:
             "per_seed": per_seed,
             "load_average_end": [round(v, 2) for v in os.getloadavg()],
         }
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(out, indent=1) + "\n")
-        print(f"wrote {args.out}")
+        study.write_figures(args.out, "tracker-late", argv, out)
     return 0
 
 
