@@ -29,7 +29,7 @@ def test_repo_is_the_checkout_the_package_lives_in():
 def test_every_module_has_a_subcommand_or_is_a_helper():
     modules = {m.name for m in pkgutil.iter_modules([str(PACKAGE)])}
     tools = {t.module for t in [*cli.TOOLS.values(), *cli.FIGURES.values()] if t.module}
-    helpers = {"cli", "__main__", "docs", "hosts", "observer", "processes", "ray_cluster"}
+    helpers = {"cli", "__main__", "docs", "hosts", "observer", "processes", "ray_cluster", "study"}
     assert tools <= modules
     assert modules - tools == helpers
 
