@@ -20,6 +20,13 @@
 #   ros2 run ops_gym_bridge evaluate OUT/best --realism lab --mode hard --splits test \
 #       --seeds $(seq 8301 8320) --episodes 5      # 100 episodes, mean and worst; goal >= 0.95
 #
+# A run's replay buffer lives in OUT (runs/, not committed): a fresh checkout has none, and a
+# run can go on there only from a committed model. docs/results/lab_training/<run>/ holds the
+# last model of the from-scratch run and its best (best/); go on from either with a fresh
+# buffer and the run's own learning rate:
+#   INIT=docs/results/lab_training/n5_hard_lab_scratch_k8 TUNE="--hyperparams learning_starts=20000" \
+#       OUT=runs/issue32/n5_hard_lab_k8_next MINUTES=150 EVAL_FREQ=100000 scripts/train_lab.sh
+#
 # INIT=models/n5_hard (default) fine-tunes that model (SAC, fast set, the rig's observation with
 # --obs-history 4: at least the largest latency + 1) with TUNE (default: learning rate 1e-4, a
 # tenth of the fast set's, and learning_starts 20,000: a fine-tune first fills its new replay
