@@ -10,7 +10,7 @@ recorded n5_hard episode came out 0.61 on one machine and 0.76 on another). Inst
   model was trained on, and the loaded policy maps stored observations to the stored actions — a
   changed observation layout or scaling, a damaged model.zip, lost normalization statistics or a
   broken loader fails here;
-* a statistical bound over 20 episodes of the model's own mode: the median episode ends at
+* a statistical bound over 20 episodes of the model's own mode and rig: the median episode ends at
   P_N/P_max >= 0.9 and the mean >= 0.7 (measured: medians 0.95-0.99; a model that does not act
   usefully ends near its reset power, 0.1-0.4).
 """
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ops_bench.reference_actions import model_env
+from ops_bench.reference_actions import model_env, rig_arguments
 from ops_controller_ros.policy_io import load_policy
 from ops_gym_bridge.experiments.evaluate import build_parser, evaluate
 
@@ -63,6 +63,7 @@ def test_shipped_model_gives_its_reference_actions(folder):
 def test_shipped_model_stacks_in_its_mode(folder):
     meta = json.loads((folder / "metadata.json").read_text())
     argv = [str(folder), "--seeds", "31", "32", "33", "34", "--episodes", "5"]
+    argv += rig_arguments(meta)  # on the rig it was trained on
     args = build_parser().parse_args([*argv, "--splits", "test", "--quiet"])
     results = evaluate(args)
     assert (results["stage"], results["mode"]) == (meta["stage"], meta["mode"])

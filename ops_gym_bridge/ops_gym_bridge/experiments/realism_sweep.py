@@ -41,8 +41,11 @@ PANELS = (
     ("pulse energy noise, % rms", "amplitude noise ", (1, 3), 0),
 )
 CONTROLLERS = ("tracker", "spgd")
-#: The learned models the README names, per mode.
-MODELS = {"medium": ("models/n5_medium",), "hard": ("models/n5_hard", "models/n5_hard_switch")}
+#: The learned models the README names, per mode, and the one trained on the rig (hard).
+MODELS = {
+    "medium": ("models/n5_medium",),
+    "hard": ("models/n5_hard", "models/n5_hard_switch", "models/n5_hard_lab"),
+}
 DEFAULT_SEEDS = tuple(range(8301, 8321))  # never used for training or tuning
 
 

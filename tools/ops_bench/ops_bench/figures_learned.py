@@ -67,8 +67,10 @@ def table_rows(models: list[dict]) -> list[str]:
         n5 = n == 5 and mode in GOALS_N5
         goal = f">= {GOALS_N5[mode]}" if n5 else "-"
         paper = f"{PAPER_TD3_TEST_N5[mode]:.3f}" if n5 else "-"
+        realism = (meta.get("rig") or {}).get("realism", "ideal")
+        where = f"{n}, {mode}" + ("" if realism == "ideal" else f", `{realism}` rig")
         rows.append(
-            f"| `models/{m['name']}` | {n}, {mode} | {meta.get('obs_history', 0)} | "
+            f"| `models/{m['name']}` | {where} | {meta.get('obs_history', 0)} | "
             f"{meta.get('reward') or 'paper'} | "
             f"{minutes:.0f} min | {meta['timesteps']:,} | {test['final_power_mean']:.3f} ± "
             f"{test['final_power_std']:.3f} | {test['final_power_min_episode']:.3f} | "
@@ -120,7 +122,9 @@ def run_label(meta: dict, prefix: str) -> str:
     reward = meta.get("reward") or "paper"
     detector = meta.get("detector", "polarizer")
     n = meta["stage"]
-    return f"{prefix}: N = {n}, {meta['algo']}, k = {k}, reward {reward}, {detector}"
+    realism = (meta.get("rig") or {}).get("realism", "ideal")
+    rig = "" if realism == "ideal" else f", {realism} rig"
+    return f"{prefix}: N = {n}, {meta['algo']}, k = {k}, reward {reward}, {detector}{rig}"
 
 
 def plot_curve(ax, run: dict, label: str, **style) -> None:
@@ -136,7 +140,9 @@ def main(argv=None) -> int:
     for ax, mode in zip(axes, MODES, strict=True):
         for m in (m for m in models if m["meta"]["mode"] == mode and m["curve"]):
             five = m["meta"]["stage"] == 5
-            style = {"lw": 2.2 if five else 1.4, "ls": "-" if five else ":", "color": "black"}
+            on_rig = (m["meta"].get("rig") or {}).get("realism", "ideal") != "ideal"
+            ls = "--" if on_rig else "-" if five else ":"
+            style = {"lw": 2.2 if five else 1.4, "ls": ls, "color": "black"}
             plot_curve(ax, m, run_label(m["meta"], f"models/{m['name']}"), **style)
         colors = iter(plt.cm.tab10.colors)
         for a in (a for a in ablations if a["meta"]["mode"] == mode):
@@ -153,7 +159,10 @@ def main(argv=None) -> int:
         ax.set_ylim(0, 1.03)
         ax.legend(fontsize=6.5, loc="lower right")
     axes[0].set_ylabel("final P_N / P_max (periodic test evaluation, 20 episodes)")
-    fig.suptitle("Learned agents against training time (issue 11); black: shipped models")
+    fig.suptitle(
+        "Learned agents against training time (issue 11); black: shipped models (dashed: "
+        "trained and tested on a rig that is not ideal)"
+    )
     fig.tight_layout()
     out = REPO / "docs" / "figures" / "learned_agents.png"
     fig.savefig(out, dpi=110)

@@ -27,8 +27,22 @@ ENVS = 4
 STEPS = 16
 
 
+def model_rig(metadata: dict) -> dict:
+    """The rig a model was trained on (``train --realism`` / ``--rig``; empty: the ideal one)."""
+    return dict(metadata.get("rig") or {})
+
+
+def rig_arguments(metadata: dict) -> list[str]:
+    """``evaluate``'s arguments for the rig a model was trained on (none for the ideal one)."""
+    argv: list[str] = []
+    for key, value in model_rig(metadata).items():
+        argv += ["--realism", str(value)] if key == "realism" else ["--rig", f"{key}={value}"]
+    return argv
+
+
 def model_env(loaded, num_envs: int):
-    """The model's own environment (stage, mode, detector, observation set), testing split."""
+    """The model's own environment (stage, mode, detector, rig, observation set), testing
+    split."""
     from ops_controller_ros.policy_io import observation_spec_of
     from ops_sim_ros.config import make_config
     from ops_sim_ros.vec_env import OpsVectorEnv
@@ -38,6 +52,7 @@ def model_env(loaded, num_envs: int):
         loaded.mode,
         "test",
         detector=(loaded.metadata.get("config") or {}).get("detector", "polarizer"),
+        **model_rig(loaded.metadata),
     )
     options = observation_spec_of(loaded.metadata).options()
     return OpsVectorEnv.from_config(config, num_envs=num_envs, observation_options=options)

@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+from ops_bench.reference_actions import rig_arguments
 
 # evaluation seeds: not the seeds the training evaluations used (0 ...), so the shipped figure
 # is not the one the best model was selected on
@@ -93,8 +96,11 @@ def main(argv=None) -> int:
 
 
 def evaluate(model: Path, args) -> int:
-    """`evaluate` of the model folder ``model`` on the held-out seeds, into DEST/eval."""
+    """`evaluate` of the model folder ``model`` on the held-out seeds and the rig it was
+    trained on, into DEST/eval."""
+    metadata = json.loads((model / "metadata.json").read_text())
     cmd = ["ros2", "run", "ops_gym_bridge", "evaluate", str(model), "--seeds", *args.seeds]
+    cmd += rig_arguments(metadata)  # a model trained on a rig is evaluated on it
     cmd += ["--episodes", args.episodes, "--out", str(args.dest / "eval"), "--torch-threads", "1"]
     print("[ship] " + " ".join(cmd), flush=True)
     return subprocess.run(cmd).returncode
