@@ -315,7 +315,7 @@ def test_long_run_training_options_are_saved_and_checked(trained, tmp_path):
     done = run("train", "--resume", "--out", out, "--setpoint-window", 2, "--timesteps", 10)
     assert done.returncode == 2 and "--setpoint-window 2 differs from the model's 1" in done.stderr
     for extra, message in (
-        (["--continue-prob", 0.5], "--continue-prob needs the in-process batched"),
+        (["--continue-prob", 0.5, "--backend", "ros"], "--continue-prob carries a run on"),
         (["--continue-prob", 1.0, "--n-envs", 2], "--continue-prob must be in [0, 1)"),
         (["--setpoint-window", 0.2], "setpoint_window_cycles must be 0 (off) or >= 0.5"),
     ):
@@ -472,3 +472,19 @@ def test_a_rig_drawn_per_episode_is_saved_resumed_and_the_model_evaluates_on_lab
     assert bad.returncode == 2, bad.stdout + bad.stderr
     assert "actuator_hysteresis=0:1.2: actuator_hysteresis must be from 0.0 to 0.99" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_a_rig_drawn_per_episode_trains_with_runs_that_carry_on(tmp_path):
+    """--rig-randomize with --continue-prob (the recipe that held long runs, on the rig): each
+    env carries its run on, with its rig, at some episode ends; both are saved."""
+    out = tmp_path / "lab_long"
+    done = run(
+        "train", "--algo", "sac", "--stage", 2, "--mode", "hard", "--timesteps", 300,
+        "--n-envs", 2, "--episode-steps", 20, "--realism", "lab", "--rig-randomize", "lab",
+        "--hold-steps", "auto", "--continue-prob", 0.5, "--out", out, "--no-progress",
+        "--hyperparams", *FAST,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "continue_prob=0.5" in done.stdout
+    meta = read_metadata(out)
+    assert meta["continue_prob"] == 0.5 and meta["rig_randomize"]["latency_steps"] == [0, 2]

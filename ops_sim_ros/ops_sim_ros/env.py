@@ -47,6 +47,12 @@ class OpsEnv(gym.Env):
     reward and info are the last reading's, and the observation's memory holds the decisions'
     readings alone. 0 (auto): k = the latency_steps + 1 of the episode's rig (drawn anew per
     episode with ``rig_randomize``); ``env.hold_steps`` is the current episode's k.
+
+    ``continue_prob`` (default 0): a ``reset`` after an episode ended by truncation carries the
+    same run on with this probability instead of starting afresh, as the batched env's
+    (:mod:`ops_sim_ros.vec_env`): only the step count restarts; the delay errors, drift,
+    set-points, the observation's memory and a drawn rig go on, and the returned observation is
+    the last one. A reset with a seed or options, or one in mid-episode, always starts afresh.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
@@ -62,10 +68,14 @@ class OpsEnv(gym.Env):
         observation_options: dict[str, Any] | None = None,
         rig_randomize: Any = None,
         hold_steps: int = 1,
+        continue_prob: float = 0.0,
         **overrides: Any,
     ) -> None:
         super().__init__()
         self.hold_option = check_hold_steps(hold_steps)
+        if not (isinstance(continue_prob, int | float) and 0.0 <= continue_prob < 1.0):
+            raise ValueError(f"continue_prob must be in [0, 1) (got {continue_prob!r})")
+        self.continue_prob = float(continue_prob)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of None, human, rgb_array (got {render_mode!r})"
@@ -86,6 +96,7 @@ class OpsEnv(gym.Env):
         self.hold_steps = resolve_hold_steps(self.hold_option, self.config.latency_steps)
         self._abs_scale = self.config.absolute_action_range_fs
         self._last: StepResult | None = None
+        self._last_obs: np.ndarray | None = None
         self._viewer = None
 
     @classmethod
@@ -103,8 +114,12 @@ class OpsEnv(gym.Env):
             obs = self._observations.reset(*args, applied_fs=r.applied_fs[0])
         else:
             obs = self._observations.step(*args, action, applied_fs=r.applied_fs[0])
+        return obs, self._info(r)
+
+    @staticmethod
+    def _info(r: StepResult) -> dict[str, Any]:
         # The simulation makes fresh arrays every step, so views are safe to hand out.
-        info = {
+        return {
             "power": float(r.power[0]),
             "delays_fs": r.applied_fs[0],
             "setpoints_fs": r.setpoints_fs[0],
@@ -112,10 +127,25 @@ class OpsEnv(gym.Env):
             "rejected_energy": float(r.rejected_energy[0]),
             "clipped": r.clipped[0],
         }
-        return obs, info
+
+    def _carries_on(self, seed, options) -> bool:
+        """Whether this reset carries the ended run on (``continue_prob``)."""
+        return (
+            self.continue_prob > 0.0
+            and seed is None
+            and not options
+            and self._last is not None
+            and self._last_obs is not None
+            and bool(self._last.truncated[0])
+            and self.np_random.random() < self.continue_prob
+        )
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
+        if self._carries_on(seed, options):
+            self.sim.continue_episodes(np.ones(1, dtype=bool))
+            self._last = self.sim.last
+            return self._last_obs.copy(), self._info(self._last)
         if self.rig_ranges:  # a rig of its own for this episode, drawn from the env's stream
             self.rig = self.rig_ranges.draw(self.np_random)
             self.sim.use_rig(self.config.replace(**self.rig))
@@ -133,6 +163,7 @@ class OpsEnv(gym.Env):
             r = self.sim.place(options.get("setpoints_fs"), options.get("delay_errors_fs"))
         self._last = r
         obs, info = self._obs_info(r)
+        self._last_obs = obs
         if self.render_mode == "human":
             self.render()
         return obs, info
@@ -142,6 +173,7 @@ class OpsEnv(gym.Env):
         delay command; returns the simulation's step result (batched by 1)."""
         if self._last is None:
             raise RuntimeError("call reset() before step_setpoints()")
+        self._last_obs = None  # no observation made: a run stepped so does not carry on
         self._last = self.sim.step_setpoints(np.asarray(setpoints_fs, dtype=np.float64)[None, :])
         return self._last
 
@@ -156,6 +188,7 @@ class OpsEnv(gym.Env):
         r = hold_after(self.sim, r, self.hold_steps)
         self._last = r
         obs, info = self._obs_info(r, action)
+        self._last_obs = obs
         if self.render_mode == "human":
             self.render()
         return obs, float(r.reward[0]), False, bool(r.truncated[0]), info

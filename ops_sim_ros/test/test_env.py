@@ -127,3 +127,78 @@ def test_human_render_draws_a_figure_and_close_removes_it():
     env = dict(os.environ, MPLBACKEND="Agg")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+
+
+def _run_episode(env, steps, action):
+    for t in range(steps):
+        obs, _, terminated, truncated, _ = env.step(action)
+        assert not terminated and truncated == (t == steps - 1)
+    return obs
+
+
+def test_continue_prob_carries_some_runs_on_and_restarts_the_rest():
+    """A reset after a truncated episode either starts afresh (set-points 0) or, with
+    continue_prob, carries on: the same set-points and observation, only the step count
+    restarts, and the next episode is again max_episode_steps long."""
+    steps = 4
+    env = OpsEnv(
+        stage=3, mode="hard", max_episode_steps=steps, continue_prob=0.5,
+        observation_options={"history": 2},
+    )  # fmt: skip
+    env.reset(seed=3)
+    action = np.full(3, 0.7, dtype=np.float32)
+    carried = fresh = 0
+    for _ in range(40):
+        last = _run_episode(env, steps, action)
+        setpoints = env.sim.setpoints_fs.copy()
+        obs, info = env.reset()
+        if np.all(env.sim.setpoints_fs == 0.0):
+            fresh += 1
+        else:
+            carried += 1
+            np.testing.assert_array_equal(env.sim.setpoints_fs, setpoints)
+            np.testing.assert_array_equal(obs, last)  # the run's memory goes on
+            np.testing.assert_array_equal(info["setpoints_fs"], setpoints[0])
+        assert env.sim.step_count[0] == 0
+    assert carried > 8 and fresh > 8  # about half each of 40 episode ends
+
+
+def test_continue_prob_never_carries_a_seeded_or_mid_episode_reset_on():
+    env = OpsEnv(stage=3, mode="hard", max_episode_steps=3, continue_prob=0.95)
+    action = np.full(3, 0.7, dtype=np.float32)
+    for seed in range(5):
+        env.reset(seed=seed)
+        _run_episode(env, 3, action)
+        env.reset(seed=seed)  # a seed asks for that episode
+        assert np.all(env.sim.setpoints_fs == 0.0)
+    env.step(action)
+    env.reset()  # in mid-episode: a new one
+    assert np.all(env.sim.setpoints_fs == 0.0)
+
+
+def test_a_carried_on_run_keeps_its_drawn_rig():
+    env = OpsEnv(
+        stage=2, mode="hard", realism="lab", max_episode_steps=3, continue_prob=0.5,
+        rig_randomize={"latency_steps": (0, 2), "pulse_amplitude_noise": (0.0, 0.03)},
+        hold_steps=0,
+    )  # fmt: skip
+    env.reset(seed=1)
+    action = np.full(2, 0.5, dtype=np.float32)
+    carried = redrawn = 0
+    for _ in range(30):
+        while not env.step(action)[3]:  # held decisions: 3 simulator steps, 1-3 decisions
+            pass
+        rig = dict(env.rig)
+        env.reset()
+        if np.any(env.sim.setpoints_fs != 0.0):
+            carried += 1
+            assert env.rig == rig and env.hold_steps == rig["latency_steps"] + 1
+        else:
+            redrawn += env.rig != rig
+    assert carried > 5 and redrawn > 5
+
+
+def test_continue_prob_is_checked():
+    for bad in (-0.1, 1.0, True, "0.5"):
+        with pytest.raises(ValueError, match="continue_prob"):
+            OpsEnv(stage=2, continue_prob=bad)

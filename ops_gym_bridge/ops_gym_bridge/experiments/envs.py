@@ -27,11 +27,19 @@ def make_single_env(
     observation_options: dict[str, Any] | None = None,
     rig_randomize=None,
     hold_steps: int = 1,
+    continue_prob: float = 0.0,
 ):
     """One gymnasium env (not wrapped). ``observation_options``: e.g. ``{"history": 4}``;
     ``rig_randomize``: ranges of the rig's figures drawn per episode (in-process only,
     ``ops_sim_ros.rig_randomization``); ``hold_steps``: simulator steps per decision
-    (in-process only, ``ops_sim_ros.held``; 0: the episode's latency_steps + 1)."""
+    (in-process only, ``ops_sim_ros.held``; 0: the episode's latency_steps + 1);
+    ``continue_prob``: the share of episode ends that carry on the same run (in-process only,
+    ``OpsEnv``)."""
+    if continue_prob and backend != "inprocess":
+        raise ValueError(
+            f"--continue-prob carries a run on in the simulator: it needs --backend inprocess "
+            f"(got {backend})"
+        )
     if hold_steps != 1 and backend != "inprocess":
         raise ValueError(
             f"--hold-steps holds each decision in the simulator: it needs --backend inprocess "
@@ -48,7 +56,12 @@ def make_single_env(
     if backend == "inprocess":
         from ops_sim_ros import OpsEnv
 
-        return OpsEnv(rig_randomize=rig_randomize, hold_steps=hold_steps, **common)
+        return OpsEnv(
+            rig_randomize=rig_randomize,
+            hold_steps=hold_steps,
+            continue_prob=continue_prob,
+            **common,
+        )
     if rig_randomize:
         raise ValueError(
             "--rig-randomize draws the rig in the simulator of each episode: it needs "
@@ -126,8 +139,8 @@ def make_vec_env(
     a DummyVecEnv of ``OpsEnv`` if it is missing). ROS backend: one bridge per namespace.
     ``overrides``: OpsConfig fields (e.g. ``detector``) of every env; ``observation_options``:
     the observation's choices (e.g. ``{"history": 4}``) of every env; ``continue_prob``: the
-    share of episode ends that carry on the same run (``ops_sim_ros.vec_env``; batched in-process
-    envs only); ``rig_randomize``: ranges of the rig's figures that each env draws anew at
+    share of episode ends that carry on the same run (in-process only: ``ops_sim_ros.vec_env``,
+    or each ``OpsEnv``); ``rig_randomize``: ranges of the rig's figures that each env draws anew at
     every reset (``ops_sim_ros.rig_randomization``): a DummyVecEnv of ``OpsEnv`` (the batched
     env runs one rig for all its envs); ``hold_steps``: each step one decision of that many
     simulator steps (``ops_sim_ros.held``; 0, auto: each env's rig's latency_steps + 1, per
@@ -156,11 +169,7 @@ def make_vec_env(
                 "--rig-randomize draws the rig in the simulator of each episode: it needs "
                 f"--backend inprocess (got {backend})"
             )
-        if continue_prob:
-            raise ValueError(
-                "--rig-randomize and --continue-prob cannot be combined yet: a rig drawn per "
-                "episode runs on single in-process envs, carried-on episodes on the batched ones"
-            )
+        env_kwargs["continue_prob"] = continue_prob  # a carried-on run keeps its rig
         return _monitored("inprocess", [{"rig_randomize": rig_randomize}] * n_envs, env_kwargs)
     if backend == "ros":
         namespaces = _ros_namespaces(namespaces, n_envs)
@@ -183,9 +192,7 @@ def make_vec_env(
         )
         if venv is not None:
             return venv
-    if continue_prob:
-        raise ValueError("continue_prob needs the batched in-process envs (n_envs >= 2)")
-    return _monitored("inprocess", [{}] * n_envs, env_kwargs)
+    return _monitored("inprocess", [{}] * n_envs, {**env_kwargs, "continue_prob": continue_prob})
 
 
 def _ros_namespaces(namespaces: list[str] | None, n_envs: int) -> list[str]:

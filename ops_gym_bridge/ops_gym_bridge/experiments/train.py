@@ -209,7 +209,8 @@ def _add_run_arguments(p) -> None:
         metavar="Q",
         help="probability that an ending episode carries on from where it is (delays, drift, "
         "set-points) instead of a fresh start: the states of a long run enter the training data "
-        "(in-process batched environments; default 0; --resume and --init-from: the model's)",
+        "(in-process environments, batched or drawing a rig per episode, which a carried-on "
+        "run keeps; default 0; --resume and --init-from: the model's)",
     )
     p.add_argument(
         "--namespace",

@@ -249,10 +249,10 @@ def _fill_set_defaults(args) -> None:
         )
     if not args.continue_prob < 1.0:
         raise TrainError(f"--continue-prob must be in [0, 1) (got {args.continue_prob})")
-    if args.continue_prob > 0 and (args.backend != "inprocess" or args.n_envs < 2):
+    if args.continue_prob > 0 and args.backend != "inprocess":
         raise TrainError(
-            "--continue-prob needs the in-process batched environments (--backend inprocess, "
-            f"--n-envs >= 2; got --backend {args.backend}, --n-envs {args.n_envs})"
+            "--continue-prob carries a run on in the simulator: it needs --backend inprocess "
+            f"(got --backend {args.backend})"
         )
     if args.obs_history < 0:
         raise TrainError("--obs-history must be >= 0")
