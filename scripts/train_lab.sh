@@ -27,6 +27,12 @@
 #   INIT=docs/results/lab_training/n5_hard_lab_scratch_k8 TUNE="--hyperparams learning_starts=20000" \
 #       OUT=runs/issue32/n5_hard_lab_k8_next MINUTES=150 EVAL_FREQ=100000 scripts/train_lab.sh
 #
+# The long-run recipe of models/n5_hard_long (set-points against a whole-cycle reference, runs
+# that carry on three times in four), on the rig, from the shipped lab model:
+#   INIT=models/n5_hard_lab OUT=runs/issue32/n5_hard_lab_long MINUTES=150 EVAL_FREQ=100000 \
+#       TUNE="--hyperparams learning_rate=0.0003 learning_starts=20000 --setpoint-window 1 \
+#       --continue-prob 0.75" scripts/train_lab.sh
+#
 # INIT=models/n5_hard (default) fine-tunes that model (SAC, fast set, the rig's observation with
 # --obs-history 4: at least the largest latency + 1) with TUNE (default: learning rate 1e-4, a
 # tenth of the fast set's, and learning_starts 20,000: a fine-tune first fills its new replay
