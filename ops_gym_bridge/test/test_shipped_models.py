@@ -12,7 +12,11 @@ recorded n5_hard episode came out 0.61 on one machine and 0.76 on another). Inst
   broken loader fails here;
 * a statistical bound over 20 episodes of the model's own mode and rig: the median episode ends at
   P_N/P_max >= 0.9 and the mean >= 0.7 (measured: medians 0.95-0.99; a model that does not act
-  usefully ends near its reset power, 0.1-0.4).
+  usefully ends near its reset power, 0.1-0.4, and one trained on the ideal stacker near 0.2 on
+  the lab rig). A model trained on a rig that is not ideal holds lower (models/n5_hard_lab: median
+  0.907 over 100 held-out episodes, a quarter below 0.85): its median bound is 0.8, which 20
+  episodes of it miss less than once in 1,000 draws (13 of 100 ended below 0.8), and which a
+  broken one still misses.
 """
 
 from __future__ import annotations
@@ -71,5 +75,6 @@ def test_shipped_model_stacks_in_its_mode(folder):
     assert len(test["final_power_per_seed"]) == 4
     finals = np.asarray(test["final_power_per_episode"])
     assert finals.size == 20
-    assert np.median(finals) >= 0.9, finals
+    on_rig = (meta.get("rig") or {}).get("realism", "ideal") != "ideal"
+    assert np.median(finals) >= (0.8 if on_rig else 0.9), finals
     assert finals.mean() >= 0.7, finals
