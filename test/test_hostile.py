@@ -118,23 +118,35 @@ class ParamClient:
         self.executor.add_node(self.node)
         self.clients = {n: AsyncParameterClient(self.node, n) for n in SPECS}
 
-    def _wait(self, future, what: str, timeout: float = 20.0):
-        self.executor.spin_until_future_complete(future, timeout_sec=timeout)
-        assert future.done(), f"no answer within {timeout} s: {what}"
-        return future.result()
+    def _call(self, request, what: str, timeout: float = 40.0, attempt_s: float = 10.0):
+        """``request()`` (a future) until it is answered; asked again after ``attempt_s``: a
+        request or its response can be lost right after discovery (DDS), more often on a
+        loaded machine (seen once: no answer to a parameter listing within 20 s)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            future = request()
+            left = deadline - time.monotonic()
+            self.executor.spin_until_future_complete(
+                future, timeout_sec=max(0.01, min(attempt_s, left))
+            )
+            if future.done():
+                return future.result()
+            assert time.monotonic() < deadline, f"no answer within {timeout} s: {what}"
 
     def names(self, node: str) -> list[str]:
         client = self.clients[node]
         assert client.wait_for_services(timeout_sec=30), f"{node} offers no parameter services"
-        return list(self._wait(client.list_parameters(), f"list {node}").result.names)
+        return list(self._call(client.list_parameters, f"list {node}").result.names)
 
     def set(self, node: str, params):
-        return self._wait(self.clients[node].set_parameters(params), f"set on {node}").results
+        client = self.clients[node]
+        return self._call(lambda: client.set_parameters(params), f"set on {node}").results
 
     def get(self, node: str, names: list[str]) -> dict:
         from rclpy.parameter import parameter_value_to_python
 
-        got = self._wait(self.clients[node].get_parameters(names), f"get on {node}").values
+        client = self.clients[node]
+        got = self._call(lambda: client.get_parameters(names), f"get on {node}").values
         return {n: parameter_value_to_python(v) for n, v in zip(names, got, strict=True)}
 
     def close(self):
