@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ops_bench.reference_actions import model_env, rig_arguments
+from ops_bench.reference_actions import model_env, model_realism, rig_arguments
 from ops_controller_ros.policy_io import load_policy
 from ops_gym_bridge.experiments.evaluate import build_parser, evaluate
 
@@ -75,6 +75,6 @@ def test_shipped_model_stacks_in_its_mode(folder):
     assert len(test["final_power_per_seed"]) == 4
     finals = np.asarray(test["final_power_per_episode"])
     assert finals.size == 20
-    on_rig = (meta.get("rig") or {}).get("realism", "ideal") != "ideal"
+    on_rig = model_realism(meta) != "ideal"
     assert np.median(finals) >= (0.8 if on_rig else 0.9), finals
     assert finals.mean() >= 0.7, finals

@@ -22,6 +22,7 @@ import numpy as np
 from ops_gym_bridge.table1.report import PAPER_TABLE1
 
 from ops_bench import REPO
+from ops_bench.reference_actions import model_realism
 
 MODES = ("easy", "medium", "hard")
 PAPER_TD3_TEST_N5 = {m: PAPER_TABLE1[(m, "test")]["td3"][0] for m in MODES}  # N = 5
@@ -67,7 +68,7 @@ def table_rows(models: list[dict]) -> list[str]:
         n5 = n == 5 and mode in GOALS_N5
         goal = f">= {GOALS_N5[mode]}" if n5 else "-"
         paper = f"{PAPER_TD3_TEST_N5[mode]:.3f}" if n5 else "-"
-        realism = (meta.get("rig") or {}).get("realism", "ideal")
+        realism = model_realism(meta)
         where = f"{n}, {mode}" + ("" if realism == "ideal" else f", `{realism}` rig")
         rows.append(
             f"| `models/{m['name']}` | {where} | {meta.get('obs_history', 0)} | "
@@ -122,7 +123,7 @@ def run_label(meta: dict, prefix: str) -> str:
     reward = meta.get("reward") or "paper"
     detector = meta.get("detector", "polarizer")
     n = meta["stage"]
-    realism = (meta.get("rig") or {}).get("realism", "ideal")
+    realism = model_realism(meta)
     rig = "" if realism == "ideal" else f", {realism} rig"
     return f"{prefix}: N = {n}, {meta['algo']}, k = {k}, reward {reward}, {detector}{rig}"
 
@@ -140,7 +141,7 @@ def main(argv=None) -> int:
     for ax, mode in zip(axes, MODES, strict=True):
         for m in (m for m in models if m["meta"]["mode"] == mode and m["curve"]):
             five = m["meta"]["stage"] == 5
-            on_rig = (m["meta"].get("rig") or {}).get("realism", "ideal") != "ideal"
+            on_rig = model_realism(m["meta"]) != "ideal"
             ls = "--" if on_rig else "-" if five else ":"
             style = {"lw": 2.2 if five else 1.4, "ls": ls, "color": "black"}
             plot_curve(ax, m, run_label(m["meta"], f"models/{m['name']}"), **style)

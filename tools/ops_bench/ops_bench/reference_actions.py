@@ -32,6 +32,11 @@ def model_rig(metadata: dict) -> dict:
     return dict(metadata.get("rig") or {})
 
 
+def model_realism(metadata: dict) -> str:
+    """The realism preset a model was trained on (``ideal`` unless ``train --realism``)."""
+    return str(model_rig(metadata).get("realism", "ideal"))
+
+
 def rig_arguments(metadata: dict) -> list[str]:
     """``evaluate``'s arguments for the rig a model was trained on (none for the ideal one)."""
     argv: list[str] = []
