@@ -178,6 +178,7 @@ class SpgdPid:
     def _restart(self) -> None:
         p = self.params
         self._epoch += 1
+        self._pairs.clear()  # perturbations still in flight belong to the old epoch: not used
         if self.last_power > self._best[0]:
             self._best = (self.last_power, self.setpoints_fs.copy())
         start = self._best[1]

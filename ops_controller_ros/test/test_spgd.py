@@ -142,3 +142,15 @@ def test_told_the_latency_spgd_stacks_as_without_it(latency):
     assert told.mean() > blind.mean() + 0.3, (told, blind)
     with pytest.raises(ValueError, match="latency must be >= 0"):
         SpgdPid(3, latency=-1)
+
+
+def test_restarts_under_latency_keep_no_pairs_of_old_epochs():
+    """A restart drops the perturbations still in flight; their bookkeeping must go with them,
+    or a node that restarts for hours grows without bound."""
+    p = SpgdParams(restart_after=1, restart_below=1.0, restart_step_fs=10.0)
+    ctrl = SpgdPid(3, p, setpoints_fs=np.zeros(3), seed=2, latency=3)
+    for _ in range(2000):
+        ctrl.command()
+        ctrl.observe(0.1)  # flat and low: a restart after every iteration
+    assert ctrl.restarts > 50
+    assert len(ctrl._pairs) <= ctrl.latency // 2 + 2, len(ctrl._pairs)
