@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from ops_bench.processes import executable
 from ops_controller_ros.policy_io import PolicyLoadError, check_stage, load_policy, read_metadata
+from ops_gym_bridge.experiments.progress_log import read_progress
 
 from ops_sim_ros import OpsEnv
 
@@ -180,22 +181,31 @@ def test_evaluate_spgd_baseline(tmp_path):
 
 
 def test_resume_continues_the_step_count(trained, tmp_path):
+    """A resumed run continues its step count and its learning curve (the first part's log is
+    kept, not overwritten), and --hyperparams' learning rate applies from the resume on."""
     out = tmp_path / "resumed"
     shutil.copytree(trained, out)
-    done = run("train", "--resume", "--out", out, "--timesteps", 400, "--no-progress")
+    first_part = (out / "logs" / "progress.csv").read_text()
+    done = run(
+        "train", "--resume", "--out", out, "--timesteps", 400, "--no-progress",
+        "--hyperparams", "learning_rate=0.00012",
+    )  # fmt: skip
     assert done.returncode == 0, done.stdout + done.stderr
     assert "resuming sac from model.zip at step 1500" in done.stdout
     assert "[train] done: 1900 steps (400 new)" in done.stdout
     meta = read_metadata(out)
     assert meta["timesteps"] == 1900 and len(meta["history"]) == 2
     assert meta["stage"] == 3 and meta["hyperparams"]["net_arch"] == [64, 64]
-    assert load_policy(out).model.num_timesteps == 1900
-    steps = [
-        int(float(r["time/total_timesteps"]))
-        for r in csv.DictReader((out / "logs" / "progress.csv").read_text().splitlines())
-        if r.get("time/total_timesteps")
-    ]
-    assert steps[-1] == 1900 and steps == sorted(steps)
+    assert meta["hyperparams"]["learning_rate"] == pytest.approx(0.00012)
+    model = load_policy(out).model
+    assert model.num_timesteps == 1900
+    assert model.lr_schedule(1.0) == pytest.approx(0.00012)
+    assert (out / "logs" / "progress.part1.csv").read_text() == first_part
+    rows = [r for r in read_progress(out / "logs") if r.get("time/total_timesteps")]
+    steps = [int(float(r["time/total_timesteps"])) for r in rows]
+    minutes = [r["minutes"] for r in rows]
+    assert steps[0] <= 1500 < steps[-1] == 1900 and steps == sorted(steps)
+    assert minutes == sorted(minutes)
     # A resume cannot change what the model is.
     done = run("train", "--resume", "--out", out, "--stage", 5, "--timesteps", 10)
     assert done.returncode == 2 and "--stage 5 differs from the model's 3" in done.stderr

@@ -23,6 +23,7 @@ import numpy as np
 from .. import cli_args
 from . import hyperparams as hp
 from .envs import make_vec_env
+from .progress_log import keep_earlier_parts
 from .rewards import wrap_training_reward
 from .training_run import TrainError, TrainRun, observation_options, resolve_run
 
@@ -123,7 +124,9 @@ def make_model(run: TrainRun) -> None:
             source = _latest_checkpoint(out)
             if source is None:
                 raise TrainError(f"nothing to resume in {out}: no model.zip and no checkpoint")
-        model = cls.load(str(source), env=run.venv, device=args.device)
+        # --hyperparams given now apply as for --init-from (SB3's load keeps the stored ones)
+        tuned = {k: run.params[k] for k in _TUNABLE_ON_LOAD if k in run.params}
+        model = cls.load(str(source), env=run.venv, device=args.device, **tuned)
         rb = out / "replay_buffer.pkl"
         if hasattr(model, "replay_buffer") and rb.exists():
             model.load_replay_buffer(str(rb))
@@ -138,6 +141,8 @@ def make_model(run: TrainRun) -> None:
             model = cls(env=run.venv, seed=args.seed, device=args.device, verbose=0, **kwargs)
         except (TypeError, ValueError) as exc:
             raise TrainError(f"invalid hyper-parameters for {args.algo}: {exc}") from None
+    if args.resume:  # SB3's CSV logger starts its file afresh: keep the earlier parts
+        keep_earlier_parts(out / "logs")
     model.set_logger(configure(str(out / "logs"), ["csv", "tensorboard"]))
     run.model = model
     run.start_steps = int(model.num_timesteps)

@@ -24,7 +24,8 @@ Output directory (``--out DIR``)::
 
     DIR/model.zip          the trained model (stable-baselines3)
     DIR/metadata.json      what the policy runner needs (ops_controller_ros.policy_io)
-    DIR/logs/              progress.csv and TensorBoard events
+    DIR/logs/              progress.csv and TensorBoard events (a resumed run keeps the
+                           earlier parts' as progress.partK.csv: experiments.progress_log)
     DIR/checkpoints/       model_<steps>_steps.zip on a schedule (+ metadata.json)
     DIR/replay_buffer.pkl  (TD3 / SAC) the replay buffer, for --resume
     DIR/vecnormalize.pkl   (normalize_obs=true) the normalization statistics, for --resume
@@ -188,7 +189,8 @@ def _add_run_arguments(p) -> None:
     p.add_argument(
         "--resume",
         action="store_true",
-        help="continue training the model in --out (step count continues)",
+        help="continue training the model in --out (step count continues; --hyperparams' "
+        "learning_rate, batch_size, gamma, tau, gradient_steps apply from here on)",
     )
     p.add_argument(
         "--init-from",

@@ -1,6 +1,7 @@
 """Ship a trained run as a ready-to-run model folder (issue 11): the best evaluated model of
 ``train --eval-freq`` (RUN/best: model.zip + metadata.json, no replay buffer), its learning curve
-(the periodic test evaluations against training time, from RUN/logs/progress.csv) and a fresh
+(the periodic test evaluations against training time, from RUN/logs/progress*.csv: every
+resumed part) and a fresh
 evaluation on held-out seeds by `ros2 run ops_gym_bridge evaluate`.
 
 Usage (after `source setup.bash`):
@@ -24,6 +25,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from ops_gym_bridge.experiments.progress_log import read_progress
+
 from ops_bench.reference_actions import rig_arguments
 
 # evaluation seeds: not the seeds the training evaluations used (0 ...), so the shipped figure
@@ -31,19 +34,18 @@ from ops_bench.reference_actions import rig_arguments
 HELD_OUT_SEEDS = ["100", "101", "102", "103", "104"]
 
 
-def learning_curve(progress: Path, out: Path) -> int:
-    """minutes, env steps, test P_N/P_max of every periodic evaluation; returns the count."""
-    rows = []
-    with open(progress, newline="") as f:
-        for row in csv.DictReader(f):
-            if row.get("eval/final_power"):
-                rows.append(
-                    (
-                        float(row["time/time_elapsed"]) / 60.0,
-                        int(float(row["time/total_timesteps"])),
-                        float(row["eval/final_power"]),
-                    )
-                )
+def learning_curve(logs: Path, out: Path) -> int:
+    """minutes, env steps, test P_N/P_max of every periodic evaluation (every part of a resumed
+    run, minutes from its start); returns the count."""
+    rows = [
+        (
+            float(row["minutes"]),
+            int(float(row["time/total_timesteps"])),
+            float(row["eval/final_power"]),
+        )
+        for row in read_progress(logs)
+        if row.get("eval/final_power")
+    ]
     with open(out, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["minutes", "env_steps", "test_final_power"])
@@ -78,7 +80,7 @@ def main(argv=None) -> int:
     if args.curve_only:
         args.dest.mkdir(parents=True, exist_ok=True)
         shutil.copy2(args.run / "metadata.json", args.dest / "metadata.json")
-        n = learning_curve(args.run / "logs" / "progress.csv", args.dest / "learning.csv")
+        n = learning_curve(args.run / "logs", args.dest / "learning.csv")
         print(f"[ship] {args.dest}: metadata and learning curve ({n} evaluations)", flush=True)
         return evaluate(args.run / "best", args) if args.eval else 0
     best = args.run if args.final else args.run / "best"
@@ -90,7 +92,7 @@ def main(argv=None) -> int:
     args.dest.mkdir(parents=True, exist_ok=True)
     for name in ("model.zip", "metadata.json"):
         shutil.copy2(best / name, args.dest / name)
-    n = learning_curve(args.run / "logs" / "progress.csv", args.dest / "learning.csv")
+    n = learning_curve(args.run / "logs", args.dest / "learning.csv")
     print(f"[ship] {args.dest}: model, metadata, learning curve ({n} evaluations)", flush=True)
     return evaluate(args.dest, args)
 
