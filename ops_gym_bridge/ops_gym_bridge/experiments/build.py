@@ -107,11 +107,12 @@ def make_model(run: TrainRun) -> None:
         torch.set_num_threads(args.torch_threads)
     out.mkdir(parents=True, exist_ok=True)
     cls = algo_class(args.algo)
+    # A loaded model (--init-from, --resume) takes the run's values of what an update reads
+    # (the stored model's, or --hyperparams'): SB3's load would otherwise keep the stored ones
+    # (learning_rate=0.0003 was ignored).
+    tuned = {k: run.params[k] for k in _TUNABLE_ON_LOAD if k in run.params}
     if args.init_from:
         source = Path(args.init_from) / "model.zip"
-        # The run's values of what an update reads (the initial model's, or --hyperparams'):
-        # SB3's load would otherwise keep the stored ones (learning_rate=0.0003 was ignored).
-        tuned = {k: run.params[k] for k in _TUNABLE_ON_LOAD if k in run.params}
         model = cls.load(str(source), env=run.venv, device=args.device, **tuned)
         print(
             f"[train] fine-tuning {args.algo} from {source} (step {model.num_timesteps}; an "
@@ -124,8 +125,6 @@ def make_model(run: TrainRun) -> None:
             source = _latest_checkpoint(out)
             if source is None:
                 raise TrainError(f"nothing to resume in {out}: no model.zip and no checkpoint")
-        # --hyperparams given now apply as for --init-from (SB3's load keeps the stored ones)
-        tuned = {k: run.params[k] for k in _TUNABLE_ON_LOAD if k in run.params}
         model = cls.load(str(source), env=run.venv, device=args.device, **tuned)
         rb = out / "replay_buffer.pkl"
         if hasattr(model, "replay_buffer") and rb.exists():
