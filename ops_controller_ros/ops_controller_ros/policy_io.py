@@ -38,6 +38,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +49,9 @@ import numpy as np
 FORMAT_VERSION = 1
 MODEL_FILE = "model.zip"
 METADATA_FILE = "metadata.json"
+# train's checkpoints (DIR/checkpoints/model_<steps>_steps.zip) share one metadata.json, written
+# when the run starts; each checkpoint's own step count is in its name
+CHECKPOINT_NAME = re.compile(r"^model_(\d+)_steps\.zip$")
 #: stable-baselines3's algorithms, then sb3-contrib's (TQC, CrossQ).
 SB3_ALGOS = ("ppo", "td3", "sac")
 CONTRIB_ALGOS = ("tqc", "crossq")
@@ -166,6 +170,18 @@ def read_metadata(path: str | os.PathLike) -> dict:
             f"metadata malformed: {meta_path} is not valid JSON ({exc})"
         ) from None
     validate_metadata(data, source=str(meta_path))
+    return _with_checkpoint_steps(data, path)
+
+
+def _with_checkpoint_steps(data: dict, path: str | os.PathLike) -> dict:
+    """A checkpoint's metadata with its own step count (``timesteps``) instead of the count
+    at which its run started."""
+    if not data.get("checkpoint"):
+        return data
+    model_path, _ = resolve_paths(path)
+    match = CHECKPOINT_NAME.match(model_path.name)
+    if match:
+        data["timesteps"] = int(match.group(1))
     return data
 
 

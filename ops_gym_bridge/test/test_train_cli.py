@@ -86,8 +86,11 @@ def test_output_directory_and_metadata(trained):
     assert meta["command_line"][:4] == ["ros2", "run", "ops_gym_bridge", "train"]
     assert "--timesteps" in meta["command_line"]
     assert set(meta["versions"]) >= {"python", "numpy", "torch", "stable_baselines3", "gymnasium"}
-    # The checkpoints load with the same reader.
-    assert load_policy(trained / "checkpoints" / "model_500_steps.zip").stage == 3
+    # The checkpoints load with the same reader, each with its own step count.
+    checkpoint = trained / "checkpoints" / "model_500_steps.zip"
+    assert load_policy(checkpoint).stage == 3
+    assert read_metadata(checkpoint)["timesteps"] == 500
+    assert read_metadata(trained / "checkpoints" / "model_1000_steps.zip")["timesteps"] == 1000
 
 
 def test_model_loads_and_runs_and_stage_is_checked(trained):
@@ -235,6 +238,52 @@ def test_init_from_fine_tunes_with_another_task(trained, tmp_path):
     done = run("train", "--init-from", tmp_path / "nothing", "--out", tmp_path / "y")
     assert done.returncode == 2 and "--init-from" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_ship_model_ships_a_checkpoint_and_the_curve_of_the_model_it_started_from(
+    trained, tmp_path
+):
+    """`ops-bench ship-model --checkpoint STEPS --after LEARNING_CSV`: the checkpoint becomes a
+    model folder whose metadata gives its own step count, and the learning curve starts with
+    the earlier model's evaluations before the fine-tune's first step."""
+    out = tmp_path / "tuned"
+    done = run(
+        "train", "--init-from", trained, "--out", out, "--timesteps", 400, "--eval-freq", 200,
+        "--eval-episodes", 1, "--no-progress", "--hyperparams", "checkpoint_freq=200",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    earlier = tmp_path / "earlier.csv"
+    earlier.write_text(
+        "minutes,env_steps,test_final_power\n"
+        "1.00,500,0.1000\n2.00,1000,0.2000\n3.00,1400,0.3000\n9.00,1600,0.9000\n"
+    )
+    ship = [shutil.which("ops-bench"), "ship-model", out, tmp_path / "model"]
+    ship += ["--seeds", 100, "--episodes", 1]
+    done = subprocess.run(
+        [*map(str, ship), "--checkpoint", "1700", "--after", str(earlier)],
+        capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    dest = tmp_path / "model"
+    assert (dest / "model.zip").read_bytes() == (
+        out / "checkpoints" / "model_1700_steps.zip"
+    ).read_bytes()
+    meta = read_metadata(dest)
+    assert meta["timesteps"] == 1700 and "checkpoint" not in meta and meta["mode"] == "easy"
+    assert load_policy(dest).model.num_timesteps == 1700
+    with open(dest / "learning.csv", newline="") as f:
+        rows = [(float(r["minutes"]), int(r["env_steps"])) for r in csv.DictReader(f)]
+    assert rows[:3] == [(1.0, 500), (2.0, 1000), (3.0, 1400)]  # the earlier curve, to step 1500
+    own = rows[3:]
+    assert [steps for _, steps in own] == [1500, 1700, 1900]  # at the start, then every 200
+    assert all(minutes >= 3.0 for minutes, _ in own)  # counted on from the earlier curve
+    assert (dest / "eval" / "evaluation.json").is_file()
+    # A checkpoint the run does not have is named, with the ones it has.
+    done = subprocess.run(
+        [*map(str, ship), "--checkpoint", "1234"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 2 and "model_1234_steps.zip" in done.stderr
+    assert "1700, 1900" in done.stderr and "Traceback" not in done.stderr
 
 
 def test_a_fine_tune_fills_its_new_buffer_with_its_own_actions_before_updating(trained, tmp_path):

@@ -215,8 +215,14 @@ class BestModelCallback(BaseCallback):
     def _evaluate(self) -> None:
         t0 = time.monotonic()
         power = float(self.evaluate(self.model))
-        self.results.append((int(self.model.num_timesteps), power))
+        steps = int(self.model.num_timesteps)
+        self.results.append((steps, power))
+        # Written at once, at its own step: left to SB3's next dump, the row would carry a later
+        # step count (the evaluation at the start of a fine-tune read one rollout late), and a
+        # second evaluation before that dump would replace the first.
         self.logger.record("eval/final_power", power)
+        self.logger.record("time/total_timesteps", steps, exclude="tensorboard")
+        self.logger.dump(step=steps)
         if power > self.best:
             self.best = power
             self.save_best(self.model, power)

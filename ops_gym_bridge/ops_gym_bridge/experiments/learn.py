@@ -301,7 +301,8 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         callbacks.callbacks.insert(1, ActorFreeze(until))  # [0], the progress bar, is closed last
     if best is not None and args.resume:  # a resumed run keeps DIR/best unless it beats it
         _carry_best(callbacks, out / "best")
-    # Checkpoints are loadable with policy_io too: they share this metadata (steps: planned).
+    # Checkpoints are loadable with policy_io too: they share this metadata (policy_io reads
+    # each one's step count from its name).
     meta = build_metadata(
         args, run.params, model, run.venv, run.command_line, 0.0, False, run.previous
     )
