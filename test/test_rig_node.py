@@ -5,6 +5,7 @@ bad commands, the watchdog, the park on SIGTERM, and bad parameters."""
 
 from __future__ import annotations
 
+import json
 import re
 import signal
 import time
@@ -59,15 +60,22 @@ def _calibrated_simlab(procs, tmp_path, *lab_args):
 
 
 def test_simlab_calibrate_rig_spgd_closes_the_loop_safely(procs, observer, tmp_path):
+    truth = tmp_path / "truth.json"
     rig_yaml, record, port = _calibrated_simlab(
-        procs, tmp_path, "--stage", "3", "--mode", "medium", "--seed", "3", "--format", "WORD"
-    )
-    assert "fs_per_volt" in yaml.safe_load(rig_yaml.read_text())["calibration"]
+        procs, tmp_path, "--stage", "3", "--mode", "medium", "--seed", "3", "--format", "WORD",
+        "--truth-out", truth,
+    )  # fmt: skip
+    doc = yaml.safe_load(rig_yaml.read_text())
+    assert "fs_per_volt" in doc["calibration"]
+    # A full scale 12 % low, as a drifting stacker's calibration leaves it: the rig raises it.
+    doc["calibration"]["detector_full_volts"] *= 0.88
+    rig_yaml.write_text(yaml.safe_dump(doc))
 
     rig = procs.start(
-        [*executable("ops_rig_ros", "rig"), "--ros-args", "-p", f"config:={rig_yaml}"],
+        [*executable("ops_rig_ros", "rig"), "--ros-args", "-p", f"config:={rig_yaml}",
+         "-p", "full_scale_window:=50"],
         name="rig",
-    )
+    )  # fmt: skip
     rig.wait_for("scope connected", 30)
     observer.wait_count("power", 5, timeout=30)
     assert observer.count("reward") == 0  # nothing only a simulator knows
@@ -76,6 +84,13 @@ def test_simlab_calibrate_rig_spgd_closes_the_loop_safely(procs, observer, tmp_p
         lambda: _recent_power(observer) >= 0.9, 60, "the rig's power >= 0.9 under spgd"
     )
     print(f"rig power under spgd (mean of the last 20 readings): {_recent_power(observer):.4f}")
+    true_full = json.loads(truth.read_text())["detector_full_volts"]
+
+    def full_scale_raised_near_the_truth() -> bool:
+        raised = re.findall(r"detector full scale raised to ([0-9.]+) V", rig.output)
+        return bool(raised) and abs(float(raised[-1]) / true_full - 1.0) < 0.04
+
+    observer.wait_until(full_scale_raised_near_the_truth, 30, "the full scale raised to the truth")
     layout = observer.messages["intensity"][-1][2].layout.dim
     assert [d.label for d in layout] == ["slot", "sample"] and layout[0].size == 7
 

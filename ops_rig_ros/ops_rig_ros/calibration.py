@@ -44,10 +44,10 @@ from .rig_config import Calibration
 SWEEP_POINTS = 30  # per direction: each stage is swept up, then down
 SWEEP_TRIES = 2  # sweeps of a stage whose fringe is not clear before the calibration gives up
 SLOT_SEARCH_POINTS = 64
-MIN_FRINGE_SNR = 3.0
+MIN_FRINGE_SNR = 3.0  # fitted amplitude over the residual rms
 PEAK_POINTS = 9  # per stage and pass of the final peaking
 PEAK_SPAN_CYCLES = 0.5  # the peaking sweep: this many optical cycles about the zero
-PEAK_PASSES = 2  # fitted amplitude over the residual rms
+PEAK_PASSES = 2  # the peaking up goes over every stage this many times
 
 
 def _settled_record(rig: Rig) -> np.ndarray:

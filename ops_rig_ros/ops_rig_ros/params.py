@@ -30,6 +30,15 @@ PARAMS = [
         high=60.0,
         read_only=True,
     ),
+    ParamSpec(
+        "full_scale_window",
+        250,
+        "readings whose median summed slot energy, above the calibrated full scale, raises it "
+        "(a stack shows no more light than its perfect stack; 0: keep the calibration's)",
+        low=0,
+        high=100000,
+        read_only=True,
+    ),
     DIAGNOSTICS_PERIOD_SPEC,
     ParamSpec(
         "park_timeout_s",

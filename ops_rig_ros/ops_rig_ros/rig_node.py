@@ -73,6 +73,8 @@ class RigNode(Node):
         self.spp = v["samples_per_slot"]
         self.rate_hz = v["rate_hz"] if v["rate_hz"] > 0 else self.config.rate_hz
         self.limits = self.config.limits
+        self.rig.follow_full_scale(v["full_scale_window"])
+        self._full_logged = self.rig.detector_full_volts  # the full scale last logged, V
 
         self._pub_delays = self.create_publisher(Float32MultiArray, TOPIC_DELAYS, QOS_STATE)
         self._pub_intensity = self.create_publisher(
@@ -191,9 +193,23 @@ class RigNode(Node):
         self.last_good = time.monotonic()
         self.readings += 1
         self.power = power
+        self._log_full_scale()
         self._pub_delays.publish(float_array_msg(fs_for(drive.last_sent, self.cal)))
         self._pub_intensity.publish(trace_msg(np.clip(trace, -10.0, 10.0), self.spp))
         self._pub_power.publish(Float32(data=power))
+
+    def _log_full_scale(self) -> None:
+        """Say when the full scale has grown by 0.5 % or more since it was last said."""
+        full = self.rig.detector_full_volts
+        if full >= 1.005 * self._full_logged:
+            grown = 100.0 * (full / self._full_logged - 1.0)
+            self.get_logger().info(
+                f"detector full scale raised to {full:.4f} V ({grown:.1f} % since "
+                f"{self._full_logged:.4f} V): the trace's slot energies summed above it "
+                "(a stack shows no more light than its perfect stack); ops/power follows, "
+                "ops/intensity keeps the calibration's units"
+            )
+            self._full_logged = full
 
     # ------------------------------------------------------------------ services, status
     def _on_reset(self, request, response):
@@ -230,6 +246,7 @@ class RigNode(Node):
                 ("rate_hz", self.rate_hz),
                 ("readings", self.readings),
                 ("power", f"{self.power:.4f}"),
+                ("detector_full_volts", f"{self.rig.detector_full_volts:.5f}"),
                 ("scope", "connected" if self.rig.scope_connected else "gone"),
                 ("piezo", "connected" if drive.connected else "gone"),
                 ("volts", "?" if volts is None else np.round(volts, 3).tolist()),

@@ -53,6 +53,20 @@ def extract_trace(volts: np.ndarray, cal: Calibration, samples_per_slot: int) ->
     return (raw - cal.detector_offset_volts) / cal.detector_full_volts
 
 
+def summed_slots_volts(volts: np.ndarray, positions: np.ndarray) -> float:
+    """The record's slot readings summed, each above the record's own baseline: the mean of
+    the record half-way between neighbouring slots, where no pulse is. Measured in the same
+    record, the baseline takes the offset's error out of the sum (against the calibrated
+    offset, an error of 1 mV, over the 31 slots of N = 5, moved the sum by 31 mV)."""
+    volts = np.asarray(volts, dtype=np.float64)
+    index = np.arange(volts.size)
+    centres = np.interp(positions, index, volts)
+    if positions.size < 2:
+        return float(centres.sum())
+    between = np.interp(0.5 * (positions[1:] + positions[:-1]), index, volts)
+    return float(np.sum(centres - between.mean()))
+
+
 def slot_energies(trace: np.ndarray, samples_per_slot: int) -> np.ndarray:
     """Each slot's pulse energy: the trace at the slot centres."""
     spp = int(samples_per_slot)

@@ -102,6 +102,7 @@ def start_chain(args, logs: Path, rig_yaml: Path, procs: list) -> None:
     lab_cmd = ["ros2", "run", "ops_rig_ros", "simlab", "--stage", str(args.stage)]
     lab_cmd += ["--mode", args.mode, "--seed", str(args.seed), "--rate-hz", f"{args.rate_hz:g}"]
     lab_cmd += ["--realism", args.realism]
+    lab_cmd += ["--truth-out", str(logs / "truth.json")]
     lab = start([*lab_cmd, "--config-out", str(rig_yaml)], logs / "simlab.log")
     procs.append(lab)
     wait_for_line(logs / "simlab.log", "simlab ready", 60, lab)
@@ -138,6 +139,21 @@ def run_locked(node, power: list, seconds: float) -> tuple[float, float, float]:
         rclpy.spin_once(node, timeout_sec=0.05)
     end = time.monotonic()
     return started, lock_at, end
+
+
+def full_scales(logs: Path, rig_yaml: Path) -> dict:
+    """The detector's full scale as calibrated, as the rig raised it while running (its last
+    log line saying so) and simlab's hidden truth, V."""
+    import yaml
+
+    calibrated = float(yaml.safe_load(rig_yaml.read_text())["calibration"]["detector_full_volts"])
+    raised = re.findall(r"detector full scale raised to ([\d.]+) V", (logs / "rig.log").read_text())
+    truth = logs / "truth.json"
+    return {
+        "calibrated": calibrated,
+        "followed": float(raised[-1]) if raised else calibrated,
+        "true": json.loads(truth.read_text())["detector_full_volts"] if truth.is_file() else None,
+    }
 
 
 def main(argv=None) -> int:
@@ -192,7 +208,10 @@ def main(argv=None) -> int:
         "simlab_true_power_every_5s": {
             "samples": len(truth),
             "share_ge_095": float(np.mean(np.array(truth) >= 0.95)) if truth else None,
+            "median": float(np.median(truth)) if truth else None,
         },
+        "rig_power_median": float(np.median(run)) if run.size else None,
+        "detector_full_volts": full_scales(logs, rig_yaml),
         "tracker_last_progress": progress[-1] if progress else None,
         "exit_codes_tracker_rig_simlab": codes,
         "machine": {
