@@ -157,7 +157,7 @@ def save_metadata(out_dir: str | os.PathLike, metadata: dict) -> Path:
 
 def read_metadata(path: str | os.PathLike) -> dict:
     """The validated metadata of a model directory (or of the directory of a model.zip)."""
-    _, meta_path = resolve_paths(path)
+    model_path, meta_path = resolve_paths(path)
     if not meta_path.is_file():
         raise PolicyLoadError(
             f"metadata missing: {meta_path} not found (a model directory written by "
@@ -170,16 +170,8 @@ def read_metadata(path: str | os.PathLike) -> dict:
             f"metadata malformed: {meta_path} is not valid JSON ({exc})"
         ) from None
     validate_metadata(data, source=str(meta_path))
-    return _with_checkpoint_steps(data, path)
-
-
-def _with_checkpoint_steps(data: dict, path: str | os.PathLike) -> dict:
-    """A checkpoint's metadata with its own step count (``timesteps``) instead of the count
-    at which its run started."""
-    if not data.get("checkpoint"):
-        return data
-    model_path, _ = resolve_paths(path)
-    match = CHECKPOINT_NAME.match(model_path.name)
+    # A checkpoint's metadata is its run's at the start: its own step count is in its name.
+    match = CHECKPOINT_NAME.match(model_path.name) if data.get("checkpoint") else None
     if match:
         data["timesteps"] = int(match.group(1))
     return data

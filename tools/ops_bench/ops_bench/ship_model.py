@@ -31,7 +31,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ops_controller_ros.policy_io import CHECKPOINT_NAME
+from ops_controller_ros.policy_io import CHECKPOINT_NAME, read_metadata, save_metadata
 from ops_gym_bridge.experiments.progress_log import read_progress
 
 from ops_bench.reference_actions import rig_arguments
@@ -86,8 +86,6 @@ def _joined(earlier: list, rows: list) -> list:
 def _checkpoint_source(run: Path, steps: int, dest: Path) -> Path | None:
     """Write RUN's checkpoint at ``steps`` into ``dest`` as a model folder (model.zip and the
     checkpoints' metadata with that step count); None when there is none."""
-    from ops_controller_ros.policy_io import read_metadata, save_metadata
-
     zipped = run / "checkpoints" / f"model_{steps}_steps.zip"
     if not zipped.is_file():
         return None
