@@ -198,10 +198,13 @@ def test_tracker_through_the_rig_is_back_within_2_s_of_a_5_s_scope_outage(
     tracker.wait_for(f"nominal model from {rig_yaml}: stage 5, wavelength_nm=1030.0", 30)
     tracker.wait_for("closing the loop", 30)
     started = time.monotonic()
+    # A lock held for 3 s (150 readings), not one just taken: its drift estimate carries the
+    # tracker across the outage (2026-11-27: paused 1 s after the lock, 3 of 18 runs were back
+    # only 2.0-4.2 s after the scope's return)
     observer.wait_until(
-        lambda: _back_after(observer, started, 50) is not None,
-        60,
-        "50 readings >= 0.95",
+        lambda: _back_after(observer, started, 150) is not None,
+        90,
+        "150 readings >= 0.95 in a row",
         logs=(rig, tracker),
     )
 

@@ -143,12 +143,22 @@ class TrackerNode(ControllerLoopNode):
             f"reading {self.readings} ({'locked' if self.ctrl.locked else 'acquiring'}; "
             f"model {est['wavelength_nm']:.1f} nm, {est['pulse_fwhm_fs']:.0f} fs, detector "
             f"gain {est['detector_gain']:.3f} offset {est['detector_offset']:+.4f}"
+            + self._detector_note()
             + (
                 f"; latency {self.ctrl.latency} steps, told {self.ctrl.latency_told})"
                 if self.ctrl.latency_changes
                 else ")"
             )
         )
+
+    def _detector_note(self) -> str:
+        """The noise measured from the repeated first reading, and whether the tracker took the
+        detector as noisy (longer fits, stiffer drift, larger excursions): a rig whose first
+        two readings saw its delay lines still moving reads noisier than it is."""
+        var = self.ctrl._noise_var
+        if var is None:
+            return ""
+        return f", noise {var**0.5:.4f}" + (" (noisy)" if self.ctrl._noisy() else "")
 
 
 def main(args=None):

@@ -54,12 +54,16 @@ def test_the_lab_rig_is_held_near_the_top():
     assert min(held) >= 0.97, held
 
 
-def _knot_counts(budget_ms: float, seed: int = 1003, steps: int = 1500) -> tuple[int, int]:
-    """(knots taken, knot tests cut short) of a continuous `lab` run, hard, with a budget and,
-    as over DDS, 15 % of the commands a step late (the rig stepped once more on the old one)."""
-    config = make_config(5, "hard", "test", realism="lab")
+def _knot_run(
+    budget_ms: float, seed: int = 1003, steps: int = 1500, spread: bool = False, mode="hard"
+) -> PhaseTracker:
+    """The tracker after a continuous `lab` run (hard) with a budget and, as over DDS, 15 % of
+    the commands a step late (the rig stepped once more on the old one)."""
+    config = make_config(5, mode, "test", realism="lab")
     sim = BatchedSimulation(config, 1, seed=seed)
-    params = TrackerParams(knot_budget_ms=budget_ms, quiet_drift_prior_cycles=0.0)
+    params = TrackerParams(
+        knot_budget_ms=budget_ms, quiet_drift_prior_cycles=0.0, slice_knot_test=spread
+    )
     tracker = PhaseTracker(config, params, seed=seed)
     sim.reset(seed=seed)
     rng = np.random.default_rng(seed)
@@ -73,17 +77,30 @@ def _knot_counts(budget_ms: float, seed: int = 1003, steps: int = 1500) -> tuple
         tracker.observe(float(res.power[0]), res.pulse_energies[0], steps=1 + late, command_age=0)
         tracker.think()  # the node runs a deferred knot test once the command is out
         before = command
-    return tracker.knots, tracker.knot_tests_cut
+    return tracker
 
 
 def test_a_knot_test_cut_short_on_a_noisy_detector_takes_no_knot():
     """A knot test iterated once or twice wins on the noise: on a noisy detector a test its
     real-time budget cuts short is left inconclusive (no knot, counted); without a budget the
-    same run's tests run to the end and are never counted as cut."""
-    knots, cut = _knot_counts(budget_ms=1e-6)  # always past the deadline
-    assert knots == 0 and cut > 0
-    _, cut = _knot_counts(budget_ms=0.0)
-    assert cut == 0
+    same run's tests run to the end and are never counted as cut (slice_knot_test off)."""
+    cut_short = _knot_run(budget_ms=1e-6)  # always past the deadline
+    assert cut_short.knots == 0 and cut_short.knot_tests_cut > 0
+    assert _knot_run(budget_ms=0.0).knot_tests_cut == 0
+
+
+def test_a_knot_test_spread_over_readings_still_takes_knots():
+    """slice_knot_test: a test the budget would cut runs on, an iteration a reading at least,
+    and its winner is tried again on the window it ends at: knots are taken (extreme mode's
+    slopes turn every 40-120 steps; cut short, none would be), no test is cut, and without a
+    budget nothing is spread."""
+    spread = _knot_run(budget_ms=1e-6, spread=True, mode="extreme", steps=800)
+    assert spread.knot_tests_cut == 0
+    assert spread.knot_tests_spread > 0 and spread.knots > 0
+    cut = _knot_run(budget_ms=1e-6, spread=False, mode="extreme", steps=800)
+    assert cut.knots == 0 and cut.knot_tests_cut > 0
+    whole = _knot_run(budget_ms=0.0, spread=True, mode="extreme", steps=800)  # not spread
+    assert whole.knot_tests_spread == 0 and whole.knots > spread.knots
 
 
 def test_a_quiet_drift_is_held_stiffer_until_a_knot_or_a_cut_knot_test():
@@ -128,3 +145,72 @@ def test_a_noisy_detector_looks_for_a_knot_further_back():
     assert noisy._knot_setting("knot_walk_sigmas") == params.noisy_knot_walk_sigmas
     assert clean._knot_setting("knot_walk_sigmas") == params.knot_walk_sigmas
     assert noisy.window_length >= params.noisy_knot_readings + 1  # a reading before the knot
+
+
+def _first_readings(gaps) -> PhaseTracker:
+    """A tracker, ideal detector (hard), given its first readings with ``gaps`` steps between
+    them (as a rig whose tracker was busy starting reports them), the simulator stepping on the
+    commanded set-points for every step of a gap."""
+    config = make_config(5, "hard", "test")
+    sim = BatchedSimulation(config, 1, seed=3)
+    tracker = PhaseTracker(config, seed=3)
+    res = sim.reset(seed=3)
+    tracker.observe(float(res.power[0]), res.pulse_energies[0])
+    for gap in gaps:
+        command = next_command(tracker)[None]
+        for _ in range(gap):
+            res = sim.step_setpoints(command)
+        tracker.observe(float(res.power[0]), res.pulse_energies[0], steps=gap)
+    return tracker
+
+
+def test_the_detector_noise_is_measured_from_readings_a_step_apart():
+    """The first reading is repeated to measure the noise; readings steps apart see the drift
+    between them too (over a rig: 0.034 measured on a true 0.0003, and a tracker that took the
+    detector as noisy held at 0.94). They are no measure: the repeat goes on until two come a
+    step apart."""
+    drifted = _first_readings([50])
+    assert drifted._noise_var is None  # not measured from readings 50 steps apart
+    assert np.array_equal(next_command(drifted), drifted.setpoints_fs)  # the repeat goes on
+    measured = _first_readings([50, 1])
+    assert measured._noise_var is not None and not measured._noisy()
+    assert measured.window_length == P.window
+    # Drift over 50 steps would have read as noise: the same readings a step apart, not
+    # (the hard mode's drift between the first two readings is what made the 0.034)
+    direct = _first_readings([1])
+    assert direct._noise_var is not None and not direct._noisy()
+
+
+def test_a_detector_never_read_a_step_apart_stays_unmeasured():
+    """A rig that never gives two readings a step apart: after a few repeats the tracker goes
+    on acquiring, the noise unmeasured (taken as clean unless told)."""
+    tracker = _first_readings([3] * 12)
+    assert tracker._noise_var is None and not tracker._noisy()
+    assert tracker.locked or tracker.window_length == P.window
+
+
+def test_no_knot_test_on_a_window_across_an_outage():
+    """A rig's outage: readings 270 steps apart, told as 100 (the loop node counts them from
+    the rig's clock, at most 100). The window's walk over the gap explains anything, so no knot
+    is looked for while the window holds it (without that guard a knot test runs here), and the
+    lock is back at once by the drift's prediction."""
+    config = make_config(5, "hard", "test")
+    sim = BatchedSimulation(config, 1, seed=4)
+    tracker = PhaseTracker(config, seed=4)
+    res = sim.reset(seed=4)
+    tracker.observe(float(res.power[0]), res.pulse_energies[0])
+    for _ in range(300):
+        res = sim.step_setpoints(next_command(tracker)[None])
+        tracker.observe(float(res.power[0]), res.pulse_energies[0])
+    held = next_command(tracker)[None]
+    for _ in range(270):  # the rig holds its set-points through a 5.4 s outage at 50 Hz
+        res = sim.step_setpoints(held)
+    tracker.observe(float(res.power[0]), res.pulse_energies[0], steps=100)
+    assert tracker._knot_job is None
+    powers = []
+    for _ in range(tracker.window_length - 1):  # the gap still in the window
+        res = sim.step_setpoints(next_command(tracker)[None])
+        tracker.observe(float(res.power[0]), res.pulse_energies[0])
+        assert tracker._knot_job is None
+        powers.append(float(res.power[0]))
+    assert tracker.locked and min(powers[2:]) >= 0.95, powers

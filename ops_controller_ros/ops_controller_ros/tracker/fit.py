@@ -237,9 +237,10 @@ def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
     return jtj, jtr
 
 
-def _lm_path(pb: PathProblem, z, iterations: int, prune, deadline):
-    """Levenberg-Marquardt of every start of ``pb`` from z (M, D), in place; returns (cost,
-    data_cost) per start (see :func:`fit_paths` for ``prune`` and ``deadline``)."""
+def _lm_iterations(pb: PathProblem, z, iterations: int, prune):
+    """Levenberg-Marquardt of every start of ``pb`` from z (M, D), in place, as a generator of
+    (cost, data_cost) per start: at the start and after each iteration (see :func:`fit_paths`
+    for ``prune``)."""
     m = z.shape[0]
     err, jac_k = path_residuals(pb, z, True)
     act = np.arange(m)  # the starts still iterating
@@ -247,9 +248,8 @@ def _lm_path(pb: PathProblem, z, iterations: int, prune, deadline):
     data_cost = np.mean(err * err, axis=(1, 2))
     lam = np.full(m, 1e-3)
     eye = np.eye(pb.d)
+    yield cost_, data_cost
     for it in range(iterations):
-        if it and deadline is not None and time.perf_counter() >= deadline:
-            break
         if prune is not None and it == prune[0] and act.size > prune[1]:
             act = np.sort(np.argsort(cost_)[: prune[1]])
         za = z[act]
@@ -268,7 +268,7 @@ def _lm_path(pb: PathProblem, z, iterations: int, prune, deadline):
             cost_[moved] = t_cost[better]
             data_cost[moved] = np.mean(t_err[better] ** 2, axis=(1, 2))
             err[moved], jac_k[moved] = path_residuals(pb, z[moved], True)
-    return cost_, data_cost
+        yield cost_, data_cost
 
 
 def fit_paths(
@@ -310,28 +310,94 @@ def fit_paths(
     lowest cost iterate on. ``path0``: (M, K, N) the starts' paths (by default straight back
     from x_now by the drift). ``deadline`` (time.perf_counter()): no iteration starts after it
     (at least one runs)."""
-    k, n = u.shape
-    m = x_now.shape[0]
-    pb = path_problem(
-        stacker, period_fs, u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior
+    run = PathFitRun(
+        stacker,
+        period_fs,
+        x_now,
+        drift,
+        u,
+        y,
+        age,
+        iterations,
+        r_sd=r_sd,
+        w_sd=w_sd,
+        drift_prior=drift_prior,
+        ratio=ratio,
+        knots=knots,
+        knot_prior=knot_prior,
+        prune=prune,
+        path0=path0,
     )
-    if path0 is None:  # the straight path back from x_now by the drift
-        path0 = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
-    extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
-    change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
-    z = np.concatenate([path0.reshape(m, k * n), drift, extra, change], axis=1)
-    objective, data_cost = _lm_path(pb, z, iterations, prune, deadline)
-    nz = pb.nz
-    fitted_ratio = z[:, nz] if ratio else np.zeros(m)
-    x = z[:, (k - 1) * n : k * n] + fitted_ratio[:, None] * pb.u_centred[-1]
-    fitted_drift = z[:, k * n : nz].copy()
-    if knots is not None:
-        fitted_drift[np.arange(m), np.asarray(knots[0])] += z[:, pb.d - 1]
-    return PathFits(
-        x=x,
-        drift=fitted_drift,
-        data_cost=data_cost,
-        path=z[:, : k * n].reshape(m, k, n),  # the fitted errors at every reading
-        objective=objective,  # each fit's whole normalized cost (readings, walk, prior)
-        ratio=fitted_ratio,
-    )
+    run.run(deadline)
+    return run.result()
+
+
+class PathFitRun:
+    """:func:`fit_paths` an iteration at a time: :meth:`run` until a deadline, again later,
+    :meth:`result` from where it got to (a knot test spread over a rig's readings)."""
+
+    def __init__(
+        self,
+        stacker,
+        period_fs,
+        x_now,
+        drift,
+        u,
+        y,
+        age,
+        iterations: int,
+        *,
+        r_sd: float,
+        w_sd: float,
+        drift_prior,
+        ratio=False,
+        knots=None,
+        knot_prior: float = 0.0,
+        prune=None,
+        path0=None,
+    ):
+        k, n = u.shape
+        m = x_now.shape[0]
+        pb = path_problem(
+            stacker, period_fs, u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior
+        )
+        if path0 is None:  # the straight path back from x_now by the drift
+            path0 = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
+        extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
+        change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
+        self._pb, self._k, self._n, self._m, self._knots = pb, k, n, m, knots
+        self._z = np.concatenate([path0.reshape(m, k * n), drift, extra, change], axis=1)
+        self._steps = _lm_iterations(pb, self._z, iterations, prune)
+        self._objective, self._data_cost = next(self._steps)
+        self.done = False
+        self.iterations = 0  # run so far
+
+    def run(self, deadline=None) -> bool:
+        """Iterate until the last iteration, or until ``deadline`` (time.perf_counter()) once
+        one iteration ran; whether the fit is done."""
+        first = True
+        while not self.done and (first or deadline is None or time.perf_counter() < deadline):
+            first = False
+            try:
+                self._objective, self._data_cost = next(self._steps)
+                self.iterations += 1
+            except StopIteration:
+                self.done = True
+        return self.done
+
+    def result(self) -> PathFits:
+        pb, k, n, m, z = self._pb, self._k, self._n, self._m, self._z
+        nz = pb.nz
+        fitted_ratio = z[:, nz].copy() if pb.ratio else np.zeros(m)
+        x = z[:, (k - 1) * n : k * n] + fitted_ratio[:, None] * pb.u_centred[-1]
+        fitted_drift = z[:, k * n : nz].copy()
+        if self._knots is not None:
+            fitted_drift[np.arange(m), np.asarray(self._knots[0])] += z[:, pb.d - 1]
+        return PathFits(
+            x=x,
+            drift=fitted_drift,
+            data_cost=self._data_cost.copy(),
+            path=z[:, : k * n].reshape(m, k, n).copy(),  # the fitted errors at every reading
+            objective=self._objective.copy(),  # each fit's whole normalized cost
+            ratio=fitted_ratio,
+        )

@@ -170,6 +170,7 @@ class LatencyWatch:
         self._search = None
         self._recovering = None
         self._knot_job = None  # a deferred knot test of the old pairing: nothing left to test
+        self._knot_run = None
         self._revise = False
         self._bad_fits = 0
         self._history.clear()

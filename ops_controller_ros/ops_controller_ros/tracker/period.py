@@ -38,7 +38,8 @@ class PeriodCalibration:
         # at 0.02; realism sweep, 100 episodes)
         noisy = self._told_noisy() or self._weights is not None
         every = p.noisy_hop_every if noisy else p.hop_every
-        if not every or self._bad_fits or self._knot_job is not None or self._tick < self._hop_next:
+        testing = self._knot_job is not None or self._knot_run is not None  # a knot test
+        if not every or self._bad_fits or testing or self._tick < self._hop_next:
             return None
         # only on a clean lock: not right after a knot of the drift, not on a low reading
         if self._tick - self._knot_tick < self._window_len or not self.last_power >= HOP_POWER:
