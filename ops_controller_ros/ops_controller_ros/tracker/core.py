@@ -507,29 +507,12 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self._path, self._objective, self._ratio = fit.path[0], fit.objective[0], fit.ratio[0]
         return fit.x[0], fit.drift[0], float(fit.data_cost[0])
 
-    def _fit_paths(
-        self,
-        x_now,
-        drift,
-        u,
-        y,
-        age,
-        iterations: int,
-        drift_prior=None,
-        ratio=False,
-        knots=None,
-        prune=None,
-        path0=None,
-        deadline=None,
-    ) -> fit.PathFits:
-        """:meth:`_fit_path` for M starts at once (x_now, drift: (M, N); drift_prior: (M, N)
-        or None), each its own Levenberg-Marquardt (:func:`.fit.fit_paths`, which describes
-        ``knots``, ``prune``, ``path0`` and ``deadline``): the hypotheses of a knot or a recovery
-        cost one batched evaluation of the physics per iteration instead of one each. The
-        readings weigh by :meth:`_reading_sd`, the walk by :meth:`_walk_sigma`."""
-        run = self._path_fit_run(
-            x_now, drift, u, y, age, iterations, drift_prior, ratio, knots, prune, path0
-        )
+    def _fit_paths(self, *args, deadline=None, **kwargs) -> fit.PathFits:
+        """:meth:`_fit_path` for M starts at once (the arguments of :meth:`_path_fit_run`), run
+        to its end or until ``deadline`` (:func:`.fit.fit_paths`): the hypotheses of a knot or
+        a recovery cost one batched evaluation of the physics per iteration instead of one
+        each."""
+        run = self._path_fit_run(*args, **kwargs)
         run.run(deadline)
         return run.result()
 
@@ -547,8 +530,10 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         prune=None,
         path0=None,
     ) -> fit.PathFitRun:
-        """:meth:`_fit_paths` not yet run: a :class:`.fit.PathFitRun` to run an iteration at a
-        time (a knot test spread over readings)."""
+        """M starts (x_now, drift: (M, N); drift_prior: (M, N) or None) of a path fit, not yet
+        run: a :class:`.fit.PathFitRun` (which describes ``knots``, ``prune`` and ``path0``) to
+        run an iteration at a time (a knot test spread over readings). The readings weigh by
+        :meth:`_reading_sd`, the walk by :meth:`_walk_sigma`."""
         p = self.params
         if drift_prior is None:
             drift_prior = np.full(drift.shape, self._drift_prior())

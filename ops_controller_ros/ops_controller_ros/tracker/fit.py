@@ -271,31 +271,20 @@ def _lm_iterations(pb: PathProblem, z, iterations: int, prune):
         yield cost_, data_cost
 
 
-def fit_paths(
-    stacker,
-    period_fs,
-    x_now,
-    drift,
-    u,
-    y,
-    age,
-    iterations: int,
-    *,
-    r_sd: float,
-    w_sd: float,
-    drift_prior,
-    ratio=False,
-    knots=None,
-    knot_prior: float = 0.0,
-    prune=None,
-    path0=None,
-    deadline=None,
-) -> PathFits:
+def fit_paths(*args, deadline=None, **kwargs) -> PathFits:
+    """A :class:`PathFitRun` of these arguments run to its end, or until ``deadline``
+    (time.perf_counter()): no iteration starts after it (at least one runs)."""
+    run = PathFitRun(*args, **kwargs)
+    run.run(deadline)
+    return run.result()
+
+
+class PathFitRun:
     """Moving-horizon fits of a window for M starts at once (x_now, drift: (M, N); drift_prior:
     (M, N) the drift prior's std), each its own Levenberg-Marquardt: the errors at every reading
     X (K, N) and the drift mu (N,), most probable given the readings (std ``r_sd``), a random
     walk between readings (X_k - X_k-1 - mu, std ``w_sd`` per step) and the drift's prior (mean:
-    the start's drift). Returns a :class:`PathFits`.
+    the start's drift); :meth:`result` gives them as a :class:`PathFits`.
 
     ``ratio``: also fit r, the model's period over the true one minus 1 (a reading's phase is
     u + r (u - mean u) + X): identifiable when the window holds a whole-cycle move; the returned
@@ -308,33 +297,11 @@ def fit_paths(
 
     ``prune``: (iterations, keep): after that many iterations only the ``keep`` starts of
     lowest cost iterate on. ``path0``: (M, K, N) the starts' paths (by default straight back
-    from x_now by the drift). ``deadline`` (time.perf_counter()): no iteration starts after it
-    (at least one runs)."""
-    run = PathFitRun(
-        stacker,
-        period_fs,
-        x_now,
-        drift,
-        u,
-        y,
-        age,
-        iterations,
-        r_sd=r_sd,
-        w_sd=w_sd,
-        drift_prior=drift_prior,
-        ratio=ratio,
-        knots=knots,
-        knot_prior=knot_prior,
-        prune=prune,
-        path0=path0,
-    )
-    run.run(deadline)
-    return run.result()
+    from x_now by the drift).
 
-
-class PathFitRun:
-    """:func:`fit_paths` an iteration at a time: :meth:`run` until a deadline, again later,
-    :meth:`result` from where it got to (a knot test spread over a rig's readings)."""
+    Run an iteration at a time: :meth:`run` until a deadline, again later, :meth:`result` from
+    where it got to (a knot test spread over a rig's readings; :func:`fit_paths` runs one at
+    once)."""
 
     def __init__(
         self,
