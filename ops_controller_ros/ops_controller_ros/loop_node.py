@@ -56,12 +56,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float32, Float32MultiArray
 
 from . import controller_params, loop_status
-from .command_tracker import (
-    CommandTracker,
-    StepPairing,
-    sequence_number,
-    steps_between,
-)
+from .command_tracker import CommandTracker, StepPairing, sequence_number, steps_between
 from .reading_gaps import MAX_GAP_TICKS, TickClock, source_stamp
 from .rig_optics import read_rig
 from .setpoint_range import MARGIN_CYCLES, RangeKeeper
@@ -127,7 +122,8 @@ class ControllerLoopNode(Node):
         self._last_power_at = float("-inf")  # any ops/power, a reading of ours or not
         self._last_power_seq = None  # DDS sequence number of the last ops/power reading used
         self._last_power_stamp = None  # ... and its source timestamp (s)
-        self._ticks = TickClock()  # a rig's tick period, for the steps of gaps in its readings
+        # a rig's tick period, for the steps of gaps in its readings (a simulator: none)
+        self._ticks = None if self.rig_model is None else TickClock()
         self.late_steps = 0  # simulator steps that ran on old set-points (the command was late)
         self.revised_commands = 0  # commands replaced once the controller had thought further
 
@@ -360,7 +356,8 @@ class ControllerLoopNode(Node):
         power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
         seq, stamp = sequence_number(info), source_stamp(info)
         self._pairing.on_power(seq)
-        self._ticks.on_message(seq, stamp)
+        if self._ticks is not None:
+            self._ticks.on_message(seq, stamp)
         self._last_power_at = time.monotonic()
         if power is None or self.ctrl is None or not self._is_reading(seq):
             return
@@ -371,16 +368,16 @@ class ControllerLoopNode(Node):
         # Steps of a free-running simulator that ran before our command came (docs/interfaces.md)
         steps = steps_between(self._last_power_seq, seq)
         self.late_steps += steps - 1
-        if self.rig_model is not None:  # a rig's outage: the ticks its clock says (reading_gaps)
+        if self._ticks is not None:  # a rig's outage: the ticks its clock says (reading_gaps)
             ticks = self._ticks.steps(self._last_power_stamp, stamp, steps)
             if ticks > steps:
+                steps = min(ticks, MAX_GAP_TICKS)
                 self.get_logger().info(
                     f"the rig published no reading for {ticks} of its ticks "
                     f"({stamp - self._last_power_stamp:.2f} s): the controller takes "
-                    f"{min(ticks, MAX_GAP_TICKS)} steps of drift",
+                    f"{steps} steps of drift",
                     throttle_duration_sec=1.0,
                 )
-            steps = min(ticks, MAX_GAP_TICKS)
         self._last_power_seq, self._last_power_stamp = seq, stamp
         # Steps since the step that took the command (its set-points came back on ops/delays):
         # under a latency a command acts that many steps after it was taken (issue 30)

@@ -155,10 +155,10 @@ class TrackerNode(ControllerLoopNode):
         """The noise measured from the repeated first reading, and whether the tracker took the
         detector as noisy (longer fits, stiffer drift, larger excursions): a rig whose first
         two readings saw its delay lines still moving reads noisier than it is."""
-        var = self.ctrl._noise_var
-        if var is None:
+        noise = self.ctrl.measured_noise
+        if noise is None:
             return ""
-        return f", noise {var**0.5:.4f}" + (" (noisy)" if self.ctrl._noisy() else "")
+        return f", noise {noise:.4f}" + (" (noisy)" if self.ctrl.noisy else "")
 
 
 def main(args=None):

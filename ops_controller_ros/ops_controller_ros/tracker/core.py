@@ -402,6 +402,16 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         y = self._weighed(y)
         return fit.refine(self._fit_stacker, self.period_fs, x, u, y, age, drift, iterations)
 
+    @property
+    def measured_noise(self) -> float | None:
+        """The detector's noise std measured from the repeated first reading (None before)."""
+        return None if self._noise_var is None else self._noise_var**0.5
+
+    @property
+    def noisy(self) -> bool:
+        """Whether the tracker takes its detector as noisy (told, or measured so)."""
+        return self._noisy()
+
     def _measure_noise(self, u_now, y, steps: int) -> None:
         """The detector's noise from this reading and the one before, if they were taken at the
         same set-points a step apart (:meth:`_measuring_noise`). A noise found noisy that the
@@ -409,23 +419,19 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         moving or a drift between the two inflates it, never deflates it (over a rig: 0.0066 on
         a true 0.0003, then a tracker that fitted a detector gain of 1.07 and lost the lock)."""
         last_u, last_y, _ = self._history[-1]
-        if steps > 1 or not np.array_equal(last_u, u_now):
-            # steps apart (their drift is no detector noise; seen over a rig whose tracker was
-            # busy starting: 0.034 on a true 0.0003, and a noisy tracker held at 0.94)
-            self._noise_tries += 1
-            if self._noise_tries >= NOISE_TRIES and self._noise_first is not None:
-                self._set_noise(self._noise_first)
-            return
-        diff = y[:-1] - last_y[:-1]
-        var = float(np.mean(diff * diff)) / 2.0
-        noisy = var >= self.params.noisy_threshold**2
-        if self._noise_first is None and noisy and not self._told_noisy():
+        if steps == 1 and np.array_equal(last_u, u_now):
+            diff = y[:-1] - last_y[:-1]
+            var = float(np.mean(diff * diff)) / 2.0
+            noisy = var >= self.params.noisy_threshold**2
+            if self._noise_first is not None or not noisy or self._told_noisy():
+                self._set_noise(var if self._noise_first is None else min(var, self._noise_first))
+                return
             self._noise_first = var  # to be confirmed by the next pair
-            self._noise_tries += 1
-            if self._noise_tries >= NOISE_TRIES:
-                self._set_noise(var)
-            return
-        self._set_noise(var if self._noise_first is None else min(var, self._noise_first))
+        # else steps apart (their drift is no detector noise; seen over a rig whose tracker was
+        # busy starting: 0.034 on a true 0.0003, and a noisy tracker held at 0.94)
+        self._noise_tries += 1
+        if self._noise_tries >= NOISE_TRIES and self._noise_first is not None:
+            self._set_noise(self._noise_first)
 
     def _set_noise(self, var: float) -> None:
         self._noise_var = var

@@ -14,12 +14,14 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import fit
+
 
 class KnotRun(NamedTuple):
     """A knot test spread over readings (``slice_knot_test``): its hypotheses' fit, run within
     each reading's budget, and what its winner needs to be tried on a later window."""
 
-    fits: object  # fit.PathFitRun of the hypotheses (the first: no knot)
+    fits: fit.PathFitRun  # the hypotheses' fit (the first: no knot)
     knots: tuple  # (stage, first, change) (M,) as knot_hypotheses gives them
     steps: np.ndarray  # the step of each reading of its window
     drift: np.ndarray  # the drift the hypotheses started from
@@ -101,7 +103,7 @@ class KnotTest:
             predicted, x, drift, cost, u, y, age, ratio = job.fit
             if self._spreads_knot_test(deadline):
                 if self._knot_run is None:  # (one under way: this reading goes untested)
-                    run = self._start_knot_run(*job.fit)
+                    run = self._start_knot_run(predicted, u, y, age, ratio)
                     if run.fits.run(deadline):  # done within the budget: as if not spread
                         x, drift, cost = self._knot_choice(run.fits.result(), x, drift, cost)
                     else:  # on over the next readings; this one takes the plain fit
@@ -124,8 +126,9 @@ class KnotTest:
         --realism ideal --seeds 1002 1003``): its knots matter a reading sooner."""
         return deadline is not None and self.params.slice_knot_test and self._noisy()
 
-    def _start_knot_run(self, predicted, x, drift, cost, u, y, age, ratio=False) -> KnotRun:
-        """The hypotheses of :meth:`_knot_fit` on this window, not yet fitted."""
+    def _start_knot_run(self, predicted, u, y, age, ratio=False) -> KnotRun:
+        """The hypotheses of :meth:`_knot_fit` on this window (u, y, age), started from the
+        prediction, not yet fitted."""
         p = self.params
         knots = knot_hypotheses(
             self.stage, len(u), self._knot_setting("knot_readings"), p.knot_start_cycles
@@ -235,7 +238,7 @@ class KnotTest:
         knot fit explained better than a three-iteration path fit: knots at the moves)."""
         if self._knot_test_skipped(deadline):
             return x, drift, cost
-        run = self._start_knot_run(predicted, x, drift, cost, u, y, age, ratio)
+        run = self._start_knot_run(predicted, u, y, age, ratio)
         run.fits.run(deadline)
         if deadline is not None and time.perf_counter() >= deadline and self._noisy():
             # Cut short on a noisy detector: hypotheses iterated once or twice win on the noise
