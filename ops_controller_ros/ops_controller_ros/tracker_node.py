@@ -144,12 +144,21 @@ class TrackerNode(ControllerLoopNode):
             f"model {est['wavelength_nm']:.1f} nm, {est['pulse_fwhm_fs']:.0f} fs, detector "
             f"gain {est['detector_gain']:.3f} offset {est['detector_offset']:+.4f}"
             + self._detector_note()
+            + self._knot_note()
             + (
                 f"; latency {self.ctrl.latency} steps, told {self.ctrl.latency_told})"
                 if self.ctrl.latency_changes
                 else ")"
             )
         )
+
+    def _knot_note(self) -> str:
+        """The knots taken so far, and the knot tests the budget spread over readings or cut
+        short (a machine too slow for them shows here first)."""
+        c = self.ctrl
+        if not (c.knots or c.knot_tests_spread or c.knot_tests_cut):
+            return ""
+        return f", knots {c.knots} (tests spread {c.knot_tests_spread}, cut {c.knot_tests_cut})"
 
     def _detector_note(self) -> str:
         """The noise measured from the repeated first reading, and whether the tracker took the

@@ -535,6 +535,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         knots=None,
         prune=None,
         path0=None,
+        chunk=None,
     ) -> fit.PathFitRun:
         """M starts (x_now, drift: (M, N); drift_prior: (M, N) or None) of a path fit, not yet
         run: a :class:`.fit.PathFitRun` (which describes ``knots``, ``prune`` and ``path0``) to
@@ -560,6 +561,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             knot_prior=p.knot_prior_cycles,
             prune=prune,
             path0=path0,
+            chunk=chunk,
         )
 
     def _track(self, hop=None) -> None:

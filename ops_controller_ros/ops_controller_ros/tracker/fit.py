@@ -237,38 +237,60 @@ def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
     return jtj, jtr
 
 
-def _lm_iterations(pb: PathProblem, z, iterations: int, prune):
+def _lm_iterations(pb: PathProblem, z, iterations: int, prune, chunk=None):
     """Levenberg-Marquardt of every start of ``pb`` from z (M, D), in place, as a generator of
-    (cost, data_cost) per start: at the start and after each iteration (see :func:`fit_paths`
-    for ``prune``)."""
+    (cost, data_cost, finished) per start (see :func:`fit_paths` for ``prune``). Without
+    ``chunk`` it yields at the start and after each iteration; with it the starts go in groups
+    of ``chunk``, and it yields after each group's first evaluation and after each group's
+    iteration (a unit of work a real-time loop can afford between readings; the starts are
+    independent, so the fits are the same). ``finished``: the last unit has run."""
     m = z.shape[0]
-    err, jac_k = path_residuals(pb, z, True)
-    act = np.arange(m)  # the starts still iterating
-    cost_ = path_objective(pb, z, err, act)
-    data_cost = np.mean(err * err, axis=(1, 2))
+    size = m if chunk is None else max(int(chunk), 1)
+    groups = [np.arange(a, min(a + size, m)) for a in range(0, m, size)]
+    err = jac_k = None
+    cost_, data_cost = np.full(m, np.inf), np.full(m, np.inf)
+    for gi, g in enumerate(groups):
+        e, j = path_residuals(pb, z[g], True)
+        if len(groups) == 1:  # as they come (their layout sets the sums' rounding downstream)
+            err, jac_k = e, j
+        else:
+            if err is None:
+                err, jac_k = np.empty((m, *e.shape[1:])), np.empty((m, *j.shape[1:]))
+            err[g], jac_k[g] = e, j
+        cost_[g] = path_objective(pb, z[g], e, g)
+        data_cost[g] = np.mean(e * e, axis=(1, 2))
+        if chunk is not None or gi == len(groups) - 1:
+            yield cost_, data_cost, iterations <= 0 and gi == len(groups) - 1
     lam = np.full(m, 1e-3)
     eye = np.eye(pb.d)
-    yield cost_, data_cost
+    act = np.arange(m)  # the starts still iterating
     for it in range(iterations):
         if prune is not None and it == prune[0] and act.size > prune[1]:
-            act = np.sort(np.argsort(cost_)[: prune[1]])
-        za = z[act]
-        jtj, jtr = path_normal_equations(pb, za, err[act], jac_k[act], act)
-        diag = np.einsum("mii->mi", jtj)
-        a = jtj + (lam[act, None] * (diag + 1e-12))[:, :, None] * eye[None]
-        step = -np.linalg.solve(a, jtr[:, :, None])[:, :, 0]
-        trial = za + np.clip(step, -0.1, 0.1)
-        t_err, _ = path_residuals(pb, trial, False)
-        t_cost = path_objective(pb, trial, t_err, act)
-        better = t_cost < cost_[act]
-        lam[act] = np.where(better, lam[act] * 0.3, lam[act] * 10.0)
-        if better.any():  # the Jacobian again only where a start moved
-            moved = act[better]
-            z[moved] = trial[better]
-            cost_[moved] = t_cost[better]
-            data_cost[moved] = np.mean(t_err[better] ** 2, axis=(1, 2))
-            err[moved], jac_k[moved] = path_residuals(pb, z[moved], True)
-        yield cost_, data_cost
+            act = np.union1d(np.argsort(cost_)[: prune[1]], [0])  # the first iterates on
+        parts = [act[a : a + size] for a in range(0, act.size, size)]
+        for pi, part in enumerate(parts):
+            _lm_step(pb, z, part, err, jac_k, cost_, data_cost, lam, eye)
+            yield cost_, data_cost, it == iterations - 1 and pi == len(parts) - 1
+
+
+def _lm_step(pb: PathProblem, z, act, err, jac_k, cost_, data_cost, lam, eye) -> None:
+    """One Levenberg-Marquardt iteration of starts ``act``, in place."""
+    za = z[act]
+    jtj, jtr = path_normal_equations(pb, za, err[act], jac_k[act], act)
+    diag = np.einsum("mii->mi", jtj)
+    a = jtj + (lam[act, None] * (diag + 1e-12))[:, :, None] * eye[None]
+    step = -np.linalg.solve(a, jtr[:, :, None])[:, :, 0]
+    trial = za + np.clip(step, -0.1, 0.1)
+    t_err, _ = path_residuals(pb, trial, False)
+    t_cost = path_objective(pb, trial, t_err, act)
+    better = t_cost < cost_[act]
+    lam[act] = np.where(better, lam[act] * 0.3, lam[act] * 10.0)
+    if better.any():  # the Jacobian again only where a start moved
+        moved = act[better]
+        z[moved] = trial[better]
+        cost_[moved] = t_cost[better]
+        data_cost[moved] = np.mean(t_err[better] ** 2, axis=(1, 2))
+        err[moved], jac_k[moved] = path_residuals(pb, z[moved], True)
 
 
 def fit_paths(*args, deadline=None, **kwargs) -> PathFits:
@@ -296,12 +318,13 @@ class PathFitRun:
     prior. The returned drift is the one after the knot.
 
     ``prune``: (iterations, keep): after that many iterations only the ``keep`` starts of
-    lowest cost iterate on. ``path0``: (M, K, N) the starts' paths (by default straight back
-    from x_now by the drift).
+    lowest cost iterate on, and the first (no knot: the one the others must beat). ``path0``:
+    (M, K, N) the starts' paths (by default straight back from x_now by the drift).
 
-    Run an iteration at a time: :meth:`run` until a deadline, again later, :meth:`result` from
-    where it got to (a knot test spread over a rig's readings; :func:`fit_paths` runs one at
-    once)."""
+    Run a unit at a time: :meth:`run` until a deadline, again later, :meth:`result` from where
+    it got to (a knot test spread over a rig's readings; :func:`fit_paths` runs one at once).
+    ``chunk``: the starts go in groups of this many, a group's iteration a unit (51 knot
+    hypotheses iterate in ~10 ms here: a step of a 100 Hz rig; see :func:`_lm_iterations`)."""
 
     def __init__(
         self,
@@ -322,6 +345,7 @@ class PathFitRun:
         knot_prior: float = 0.0,
         prune=None,
         path0=None,
+        chunk=None,
     ):
         k, n = u.shape
         m = x_now.shape[0]
@@ -334,23 +358,31 @@ class PathFitRun:
         change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
         self._pb, self._k, self._n, self._m, self._knots = pb, k, n, m, knots
         self._z = np.concatenate([path0.reshape(m, k * n), drift, extra, change], axis=1)
-        self._steps = _lm_iterations(pb, self._z, iterations, prune)
-        self._objective, self._data_cost = next(self._steps)
+        self._steps = _lm_iterations(pb, self._z, iterations, prune, chunk)
+        self._chunked = chunk is not None
         self.done = False
-        self.iterations = 0  # run so far
+        self.units = 0  # units of work run so far (chunked: see run)
+        self._unit_s = 0.0  # how long the last unit took
+        if not self._chunked:  # the start's evaluation, as part of building the fit
+            self._objective, self._data_cost, self.done = next(self._steps)
 
     def run(self, deadline=None) -> bool:
-        """Iterate until the last iteration, or until ``deadline`` (time.perf_counter()) once
-        one iteration ran; whether the fit is done."""
+        """Run on until the end, or until ``deadline`` (time.perf_counter()); whether the fit is
+        done (as soon as its last unit ran). At least one unit runs. A unit is an iteration of
+        every start; with ``chunk``, a group's first evaluation or iteration, and none starts
+        that the last one's time says would end past the deadline."""
         first = True
-        while not self.done and (first or deadline is None or time.perf_counter() < deadline):
+        while not self.done and (first or deadline is None or self._has_time(deadline)):
             first = False
-            try:
-                self._objective, self._data_cost = next(self._steps)
-                self.iterations += 1
-            except StopIteration:
-                self.done = True
+            t0 = time.perf_counter()
+            self._objective, self._data_cost, self.done = next(self._steps)
+            self._unit_s = time.perf_counter() - t0
+            self.units += 1
         return self.done
+
+    def _has_time(self, deadline: float) -> bool:
+        now = time.perf_counter()
+        return now + (self._unit_s if self._chunked else 0.0) < deadline
 
     def result(self) -> PathFits:
         pb, k, n, m, z = self._pb, self._k, self._n, self._m, self._z

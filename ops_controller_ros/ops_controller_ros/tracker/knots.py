@@ -74,6 +74,16 @@ def knot_starts(predicted, drift, age, knots, ratio: bool) -> np.ndarray:
     return path0
 
 
+#: A knot test spread over readings iterates its hypotheses in groups of this many, a group's
+#: iteration at a time (~2 ms here), so that each reading's budget holds: all 51 of a noisy
+#: detector's hypotheses at once take ~10 ms an iteration, and the start ~20 ms, which made a
+#: 100 Hz loop late for the test's readings (over DDS, lab, hard: the readings before a loss).
+KNOT_RUN_CHUNK = 8
+#: ... and, unless ``knot_keep`` says otherwise, only this many of them iterate on after
+#: ``knot_prune_after`` iterations, with the first (no knot): one group. A spread test is then
+#: 31 units of work instead of 91, and ends in a third of the readings.
+KNOT_RUN_KEEP = 7
+
 #: With a budget that cuts the knot test short on a noisy detector, one test in this many is run
 #: again (is it still cut short?); the others are left out (:meth:`KnotTest._knot_test_skipped`).
 KNOT_RETRY = 20
@@ -103,7 +113,7 @@ class KnotTest:
             predicted, x, drift, cost, u, y, age, ratio = job.fit
             if self._spreads_knot_test(deadline):
                 if self._knot_run is None:  # (one under way: this reading goes untested)
-                    run = self._start_knot_run(predicted, u, y, age, ratio)
+                    run = self._start_knot_run(predicted, u, y, age, ratio, KNOT_RUN_CHUNK)
                     if run.fits.run(deadline):  # done within the budget: as if not spread
                         x, drift, cost = self._knot_choice(run.fits.result(), x, drift, cost)
                     else:  # on over the next readings; this one takes the plain fit
@@ -126,9 +136,9 @@ class KnotTest:
         --realism ideal --seeds 1002 1003``): its knots matter a reading sooner."""
         return deadline is not None and self.params.slice_knot_test and self._noisy()
 
-    def _start_knot_run(self, predicted, u, y, age, ratio=False) -> KnotRun:
+    def _start_knot_run(self, predicted, u, y, age, ratio=False, chunk=None) -> KnotRun:
         """The hypotheses of :meth:`_knot_fit` on this window (u, y, age), started from the
-        prediction, not yet fitted."""
+        prediction, not yet fitted (``chunk``: see :class:`.fit.PathFitRun`)."""
         p = self.params
         knots = knot_hypotheses(
             self.stage, len(u), self._knot_setting("knot_readings"), p.knot_start_cycles
@@ -144,11 +154,19 @@ class KnotTest:
             self._knot_setting("knot_iterations"),
             ratio=ratio,
             knots=knots,
-            prune=(p.knot_prune_after, p.knot_keep) if p.knot_keep else None,
+            prune=self._knot_prune(chunk),
             path0=path0,
+            chunk=chunk,
         )
         steps = np.array([h[2] for h in self._history], dtype=np.int64)[-len(u) :]
         return KnotRun(fits, knots, steps, self.drift.copy())
+
+    def _knot_prune(self, chunk) -> tuple | None:
+        """(iterations, keep) of the knot hypotheses' pruning (see :class:`.fit.PathFitRun`):
+        ``knot_keep`` if set, else a spread test's (``chunk`` given) ``KNOT_RUN_KEEP``."""
+        p = self.params
+        keep = p.knot_keep or (KNOT_RUN_KEEP if chunk is not None else 0)
+        return (p.knot_prune_after, keep) if keep else None
 
     def _advance_knot_run(self, deadline) -> None:
         """The knot test under way, on until ``deadline`` (one iteration at least); at its end

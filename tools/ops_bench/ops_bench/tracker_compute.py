@@ -1,6 +1,7 @@
 """The tracker's compute per reading, against a node's 10 ms at 100 Hz (issue 20).
 
-In process, in the testing environment (N = 5, polarizer detector): ``command`` + ``observe`` of
+In process, in the testing environment (N = 5, polarizer detector; the ideal rig, or
+``--realism``, told to the tracker): ``command`` + ``observe`` of
 every reading after the first lock (median, p99, max, share over 10 ms), with BLAS on one thread
 (what every node and CLI sets, ops_sim_ros.threads) and on the library's default (one per core),
 plus the time of one knot test (the hypotheses of :meth:`PhaseTracker._knot_fit`: stage x knot
@@ -9,7 +10,7 @@ load average is printed and written beside them; ``--busy N`` runs N busy-loopin
 the measurement (a machine whose cores are all taken, where a second BLAS thread waits for one).
 
 Usage (after `source setup.bash`):
-  ops-bench tracker-compute [--mode extreme] [--steps 3000] [--seeds 1000]
+  ops-bench tracker-compute [--mode extreme] [--realism lab] [--steps 3000] [--seeds 1000]
       [--busy 2] [--param defer_knot_test=true knot_budget_ms=4] [--write]
 """
 
@@ -24,6 +25,7 @@ import time
 
 import numpy as np
 from ops_gym_bridge.cli_args import parse_key_values
+from ops_sim_ros.config import REALISMS
 from threadpoolctl import threadpool_limits
 
 from ops_bench.docs import write_section
@@ -57,6 +59,9 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", default="extreme")
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1000])
+    ap.add_argument(
+        "--realism", choices=REALISMS, default="ideal", help="the rig, told to the tracker"
+    )
     ap.add_argument("--repeats", type=int, default=30, help="calls per fit timing")
     ap.add_argument("--busy", type=int, default=0, help="busy processes beside the measurement")
     ap.add_argument("--write", action="store_true", help="write docs/benchmarks.md")
@@ -86,7 +91,7 @@ def measure(args, cores: int) -> list[str]:
     for threads in (1, cores):
         for seed in args.seeds:
             with threadpool_limits(limits=threads, user_api="blas"):
-                run = tracker_run(args.mode, args.steps, seed, args.params)
+                run = tracker_run(args.mode, args.steps, seed, args.params, args.realism)
                 track_ms, knot_ms = fit_times(run["ctl"], args.repeats)
             power = run["power"]
             first = int(np.argmax(power >= 0.95))
@@ -112,7 +117,8 @@ def write(args, cores: int, rows: list[str]) -> None:
         [
             title,
             "",
-            f"Command: `{cmd.strip()}` ({args.mode} mode, N = 5, testing split, {args.steps} "
+            f"Command: `{cmd.strip()}` ({args.mode} mode, `{args.realism}` rig, N = 5, testing "
+            f"split, {args.steps} "
             f"steps per seed; machine: {platform.processor() or platform.machine()}, "
             f"{cores} cores; {args.busy} busy processes beside it). Per reading after the first "
             "lock: `observe`, `command`, `think` and the revised command of the tracker in process "

@@ -29,8 +29,9 @@ from ops_sim_ros.config import make_config
 from ops_sim_ros.env import OpsEnv
 
 
-def make_env(mode: str, steps: int, seed: int) -> tuple[OpsEnv, dict]:
-    env = OpsEnv(stage=5, mode=mode, split="test", max_episode_steps=steps + 1)
+def make_env(mode: str, steps: int, seed: int, realism: str = "ideal") -> tuple[OpsEnv, dict]:
+    config = make_config(stage=5, mode=mode, split="test", realism=realism)
+    env = OpsEnv.from_config(config, max_episode_steps=steps + 1)
     _, info = env.reset(seed=seed * 1000)
     return env, info
 
@@ -48,9 +49,11 @@ def bound_run(mode: str, steps: int, seed: int) -> np.ndarray:
     return power
 
 
-def tracker_run(mode: str, steps: int, seed: int, params: dict) -> dict:
-    env, info = make_env(mode, steps, seed)
-    nominal = make_config(stage=5, mode=mode)
+def tracker_run(mode: str, steps: int, seed: int, params: dict, realism: str = "ideal") -> dict:
+    """One run's readings, knots and compute per reading (see the module docstring), on the
+    ``realism`` rig, which the tracker is told."""
+    env, info = make_env(mode, steps, seed, realism)
+    nominal = make_config(stage=5, mode=mode, realism=realism)
     ctl = make_controller("tracker", nominal, params, setpoints_fs=info["setpoints_fs"], seed=seed)
     noise, period = env.sim.noise, env.optical_period_fs
     slope = noise.slope.copy()
