@@ -113,7 +113,7 @@ class KnotTest:
             predicted, x, drift, cost, u, y, age, ratio = job.fit
             if self._spreads_knot_test(deadline):
                 if self._knot_run is None:  # (one under way: this reading goes untested)
-                    run = self._start_knot_run(predicted, u, y, age, ratio, KNOT_RUN_CHUNK)
+                    run = self._start_knot_run(predicted, u, y, age, ratio, spread=True)
                     if run.fits.run(deadline):  # done within the budget: as if not spread
                         x, drift, cost = self._knot_choice(run.fits.result(), x, drift, cost)
                     else:  # on over the next readings; this one takes the plain fit
@@ -136,10 +136,13 @@ class KnotTest:
         --realism ideal --seeds 1002 1003``): its knots matter a reading sooner."""
         return deadline is not None and self.params.slice_knot_test and self._noisy()
 
-    def _start_knot_run(self, predicted, u, y, age, ratio=False, chunk=None) -> KnotRun:
+    def _start_knot_run(self, predicted, u, y, age, ratio=False, spread=False) -> KnotRun:
         """The hypotheses of :meth:`_knot_fit` on this window (u, y, age), started from the
-        prediction, not yet fitted (``chunk``: see :class:`.fit.PathFitRun`)."""
+        prediction, not yet fitted. ``spread``: to run over readings, in groups of
+        ``KNOT_RUN_CHUNK`` and pruned to ``KNOT_RUN_KEEP`` unless ``knot_keep`` is set (see
+        :class:`.fit.PathFitRun`)."""
         p = self.params
+        keep = p.knot_keep or (KNOT_RUN_KEEP if spread else 0)
         knots = knot_hypotheses(
             self.stage, len(u), self._knot_setting("knot_readings"), p.knot_start_cycles
         )
@@ -154,19 +157,12 @@ class KnotTest:
             self._knot_setting("knot_iterations"),
             ratio=ratio,
             knots=knots,
-            prune=self._knot_prune(chunk),
+            prune=(p.knot_prune_after, keep) if keep else None,
             path0=path0,
-            chunk=chunk,
+            chunk=KNOT_RUN_CHUNK if spread else None,
         )
         steps = np.array([h[2] for h in self._history], dtype=np.int64)[-len(u) :]
         return KnotRun(fits, knots, steps, self.drift.copy())
-
-    def _knot_prune(self, chunk) -> tuple | None:
-        """(iterations, keep) of the knot hypotheses' pruning (see :class:`.fit.PathFitRun`):
-        ``knot_keep`` if set, else a spread test's (``chunk`` given) ``KNOT_RUN_KEEP``."""
-        p = self.params
-        keep = p.knot_keep or (KNOT_RUN_KEEP if chunk is not None else 0)
-        return (p.knot_prune_after, keep) if keep else None
 
     def _advance_knot_run(self, deadline) -> None:
         """The knot test under way, on until ``deadline`` (one iteration at least); at its end

@@ -1,13 +1,13 @@
 """The tracker's compute per reading, against a node's 10 ms at 100 Hz (issue 20).
 
 In process, in the testing environment (N = 5, polarizer detector; the ideal rig, or
-``--realism``, told to the tracker): ``command`` + ``observe`` of
-every reading after the first lock (median, p99, max, share over 10 ms), with BLAS on one thread
-(what every node and CLI sets, ops_sim_ros.threads) and on the library's default (one per core),
-plus the time of one knot test (the hypotheses of :meth:`PhaseTracker._knot_fit`: stage x knot
-position x side) and one tracking fit on a locked state. Timings depend on the load: the 1-minute
-load average is printed and written beside them; ``--busy N`` runs N busy-looping processes beside
-the measurement (a machine whose cores are all taken, where a second BLAS thread waits for one).
+``--realism``, told to the tracker): ``command`` + ``observe`` of every reading after the first
+lock (median, p99, max, share over 10 ms), with BLAS on one thread (what every node and CLI
+sets, ops_sim_ros.threads) and on the library's default (one per core), plus the time of one
+knot test (the hypotheses of :meth:`PhaseTracker._knot_fit`: stage x knot position x side) and
+one tracking fit on a locked state. Timings depend on the load: the 1-minute load average is
+printed and written beside them; ``--busy N`` runs N busy-looping processes beside the
+measurement (a machine whose cores are all taken, where a second BLAS thread waits for one).
 
 Usage (after `source setup.bash`):
   ops-bench tracker-compute [--mode extreme] [--realism lab] [--steps 3000] [--seeds 1000]
@@ -118,8 +118,8 @@ def write(args, cores: int, rows: list[str]) -> None:
             title,
             "",
             f"Command: `{cmd.strip()}` ({args.mode} mode, `{args.realism}` rig, N = 5, testing "
-            f"split, {args.steps} "
-            f"steps per seed; machine: {platform.processor() or platform.machine()}, "
+            f"split, {args.steps} steps per seed; machine: "
+            f"{platform.processor() or platform.machine()}, "
             f"{cores} cores; {args.busy} busy processes beside it). Per reading after the first "
             "lock: `observe`, `command`, `think` and the revised command of the tracker in process "
             "(the answer: `observe` + `command`, what a node sends before it thinks; the rest "
