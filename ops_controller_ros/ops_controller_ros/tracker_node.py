@@ -90,11 +90,22 @@ class TrackerNode(ControllerLoopNode):
         )
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self._latency_changes = 0
+        self._false_locks = 0
 
     def after_reading(self) -> None:
         """A latency the readings fit better than the told one (issue 30): said on the log
         and on /diagnostics (WARN, told and measured steps) as soon as the tracker takes it,
-        and on /diagnostics again with every progress line while it stands."""
+        and on /diagnostics again with every progress line while it stands. A lock dropped as
+        false: said on the log."""
+        dropped = self.ctrl.false_locks > self._false_locks  # (a new controller counts from 0)
+        self._false_locks = self.ctrl.false_locks
+        if dropped:
+            p = self._params
+            self.get_logger().warning(
+                f"lock dropped: more than half of its last {p.false_lock_readings} readings "
+                f"below {p.false_lock_power:g} (a wrong estimate); the detector calibration is "
+                f"back to nominal and the tracker acquires again ({self._false_locks} so far)"
+            )
         if self.ctrl.latency_changes == self._latency_changes:
             return
         self._latency_changes = self.ctrl.latency_changes
