@@ -186,6 +186,24 @@ def test_the_detector_noise_is_measured_from_readings_a_step_apart():
     assert direct._noise_var is not None and not direct._noisy()
 
 
+def test_two_identical_readings_are_no_measure_of_the_noise():
+    """A reading given twice (a scope's last record when no new trigger came; the simulated
+    rig's optics before they stepped) is no detector without noise: the repeat goes on, and
+    the next pair that differs is the measure (over the rig: 0.0000 on a true 0.0003)."""
+    config = make_config(5, "hard", "test", detector_noise=0.002)
+    sim = BatchedSimulation(config, 1, seed=5)
+    tracker = PhaseTracker(config, seed=5)
+    res = sim.reset(seed=5)
+    tracker.observe(float(res.power[0]), res.pulse_energies[0])
+    command = next_command(tracker)
+    tracker.observe(float(res.power[0]), res.pulse_energies[0])  # the same acquisition again
+    assert tracker._noise_var is None
+    np.testing.assert_array_equal(next_command(tracker), command)  # the repeat goes on
+    res = sim.step_setpoints(command[None])
+    tracker.observe(float(res.power[0]), res.pulse_energies[0])
+    assert tracker.measured_noise is not None and 0.0005 < tracker.measured_noise < 0.008
+
+
 def test_a_detector_never_read_a_step_apart_stays_unmeasured():
     """A rig that never gives two readings a step apart: after a few repeats the tracker goes
     on acquiring, the noise unmeasured (taken as clean unless told)."""

@@ -424,13 +424,17 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
 
     def _measure_noise(self, u_now, y, steps: int) -> None:
         """The detector's noise from this reading and the one before, if they were taken at the
-        same set-points a step apart (:meth:`_measuring_noise`). A noise found noisy that the
-        tracker was not told of is measured once more, and the smaller taken: a delay line still
-        moving or a drift between the two inflates it, never deflates it (over a rig: 0.0066 on
-        a true 0.0003, then a tracker that fitted a detector gain of 1.07 and lost the lock)."""
+        same set-points a step apart and differ (:meth:`_measuring_noise`). A noise found noisy
+        that the tracker was not told of is measured once more, and the smaller taken: a delay
+        line still moving or a drift between the two inflates it, never deflates it (over a rig:
+        0.0066 on a true 0.0003, then a tracker that fitted a detector gain of 1.07 and lost the
+        lock)."""
         last_u, last_y, _ = self._history[-1]
-        if steps == 1 and np.array_equal(last_u, u_now):
-            diff = y[:-1] - last_y[:-1]
+        diff = y[:-1] - last_y[:-1]
+        # (two identical readings are one acquisition read twice, not a detector without
+        # noise: seen over the simulated rig, whose optics had not stepped between them, and a
+        # scope gives its last record again when no new trigger came)
+        if steps == 1 and np.array_equal(last_u, u_now) and np.any(diff):
             var = float(np.mean(diff * diff)) / 2.0
             noisy = var >= self.params.noisy_threshold**2
             if self._noise_first is not None or not noisy or self._told_noisy():
@@ -438,7 +442,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
                 return
             self._noise_first = var  # to be confirmed by the next pair
         # else steps apart (their drift is no detector noise; seen over a rig whose tracker was
-        # busy starting: 0.034 on a true 0.0003, and a noisy tracker held at 0.94)
+        # busy starting: 0.034 on a true 0.0003, and a noisy tracker held at 0.94), or the same
         self._noise_tries += 1
         if self._noise_tries >= NOISE_TRIES and self._noise_first is not None:
             self._set_noise(self._noise_first)
