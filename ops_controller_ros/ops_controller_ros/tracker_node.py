@@ -169,7 +169,10 @@ class TrackerNode(ControllerLoopNode):
         c = self.ctrl
         if not (c.knots or c.knot_tests_spread or c.knot_tests_cut):
             return ""
-        return f", knots {c.knots} (tests spread {c.knot_tests_spread}, cut {c.knot_tests_cut})"
+        # (no parentheses inside the line's own: readers match "(locked; ...): P_N/P_max")
+        return (
+            f", knots {c.knots}, knot tests spread {c.knot_tests_spread} / cut {c.knot_tests_cut}"
+        )
 
     def _detector_note(self) -> str:
         """The noise measured from the repeated first reading, and whether the tracker took the
