@@ -442,7 +442,8 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
                 return
             self._noise_first = var  # to be confirmed by the next pair
         # else steps apart (their drift is no detector noise; seen over a rig whose tracker was
-        # busy starting: 0.034 on a true 0.0003, and a noisy tracker held at 0.94), or the same
+        # busy starting: 0.034 on a true 0.0003, and a noisy tracker held at 0.94), or one
+        # reading given twice
         self._noise_tries += 1
         if self._noise_tries >= NOISE_TRIES and self._noise_first is not None:
             self._set_noise(self._noise_first)
