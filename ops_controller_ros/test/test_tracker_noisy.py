@@ -55,10 +55,17 @@ def test_the_lab_rig_is_held_near_the_top():
 
 
 def _knot_run(
-    budget_ms: float, seed: int = 1003, steps: int = 1500, spread: bool = False, mode="hard"
+    budget_ms: float,
+    seed: int = 1003,
+    steps: int = 1500,
+    spread: bool = False,
+    mode="hard",
+    units: int = 1,
 ) -> PhaseTracker:
     """The tracker after a continuous `lab` run (hard) with a budget and, as over DDS, 15 % of
-    the commands a step late (the rig stepped once more on the old one)."""
+    the commands a step late (the rig stepped once more on the old one). ``units``: think()
+    calls a reading; with a budget of 1e-6 ms each runs one unit of a spread knot test, so the
+    test moves on ``units`` units a reading whatever the machine's speed."""
     config = make_config(5, mode, "test", realism="lab")
     sim = BatchedSimulation(config, 1, seed=seed)
     # (no false-lock drops: a budget of 1e-6 ms leaves extreme mode's lock poor, and a lock
@@ -80,7 +87,8 @@ def _knot_run(
             sim.step_setpoints(before[None])
         res = sim.step_setpoints(command[None])
         tracker.observe(float(res.power[0]), res.pulse_energies[0], steps=1 + late, command_age=0)
-        tracker.think()  # the node runs a deferred knot test once the command is out
+        for _ in range(units):  # the node runs a deferred knot test once the command is out
+            tracker.think()
         before = command
     return tracker
 
@@ -95,11 +103,13 @@ def test_a_knot_test_cut_short_on_a_noisy_detector_takes_no_knot():
 
 
 def test_a_knot_test_spread_over_readings_still_takes_knots():
-    """slice_knot_test: a test the budget would cut runs on, an iteration a reading at least,
-    and its winner is tried again on the window it ends at: knots are taken (extreme mode's
-    slopes turn every 40-120 steps; cut short, none would be), no test is cut, and without a
-    budget nothing is spread."""
-    spread = _knot_run(budget_ms=1e-6, spread=True, mode="extreme", steps=800)
+    """slice_knot_test: a test the budget would cut runs on over the next readings, and its
+    winner is tried again on the window it ends at: knots are taken (extreme mode's slopes
+    turn every 40-120 steps; cut short, none would be), no test is cut, and without a budget
+    nothing is spread. At 4 units a reading (a test of 31 units ends ~8 readings on) seeds
+    1000-1007 took 5-8 knots in 800 readings; at one unit a reading the winner is ~31 readings
+    stale and 0-2 were taken, so the run pins its units, not the machine's speed."""
+    spread = _knot_run(budget_ms=1e-6, spread=True, mode="extreme", steps=800, units=4)
     assert spread.knot_tests_cut == 0
     assert spread.knot_tests_spread > 0 and spread.knots > 0
     cut = _knot_run(budget_ms=1e-6, spread=False, mode="extreme", steps=800)
