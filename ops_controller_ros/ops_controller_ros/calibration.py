@@ -42,6 +42,7 @@ class ModelCalibration:
         self.pulse_fwhm_fs = float(model.pulse_fwhm_fs)
         self.gain = 1.0
         self.offset = 0.0
+        self.detector_fitted = False  # the gain and offset fitted since start or reset
         self._line = np.zeros(5)  # sums of 1, f, y, f f, f y (forgetting)
         self._normal = np.zeros((2, 2))  # J^T J of (log wavelength, log width)
         self._rhs = np.zeros(2)  # J^T r
@@ -91,6 +92,7 @@ class ModelCalibration:
         """Back to the nominal detector (gain 1, offset 0); True if that changed anything."""
         changed = (self.gain, self.offset) != (1.0, 0.0)
         self.gain, self.offset = 1.0, 0.0
+        self.detector_fitted = False
         self._line = np.zeros(5)
         return changed
 
@@ -103,6 +105,7 @@ class ModelCalibration:
         if not 0.05 <= gain <= 20.0:
             return False
         self.gain, self.offset = gain, offset
+        self.detector_fitted = True
         self._line = line
         return True
 
@@ -159,6 +162,7 @@ class ModelCalibration:
             gain, offset = _solve_line(self._line)
             if 0.05 <= gain <= 20.0:
                 self.gain, self.offset = gain, offset
+                self.detector_fitted = True
 
     def update_optics(self) -> bool:
         """Move wavelength and width by the accumulated Gauss-Newton step; True if they moved."""

@@ -424,11 +424,13 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
 
     def _measure_noise(self, u_now, y, steps: int) -> None:
         """The detector's noise from this reading and the one before, if they were taken at the
-        same set-points a step apart and differ (:meth:`_measuring_noise`). A noise found noisy
-        that the tracker was not told of is measured once more, and the smaller taken: a delay
-        line still moving or a drift between the two inflates it, never deflates it (over a rig:
-        0.0066 on a true 0.0003, then a tracker that fitted a detector gain of 1.07 and lost the
-        lock)."""
+        same set-points a step apart and differ (:meth:`_measuring_noise`). A noise the tracker
+        was not told of that would count (noisy, or at least a third of ``residual_tolerance``
+        in variance: it widens the fits' tolerance) is measured once more, and the smaller
+        taken: a delay line still moving or a drift between the two inflates it, never deflates
+        it (over a rig: 0.0066 on a true 0.0003, then a tracker that fitted a detector gain of
+        1.07 and lost the lock; 0.0035, whose tolerance of 4e-5 took fits that walked off the
+        peak)."""
         last_u, last_y, _ = self._history[-1]
         diff = y[:-1] - last_y[:-1]
         # (two identical readings are one acquisition read twice, not a detector without
@@ -436,8 +438,9 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         # scope gives its last record again when no new trigger came)
         if steps == 1 and np.array_equal(last_u, u_now) and np.any(diff):
             var = float(np.mean(diff * diff)) / 2.0
-            noisy = var >= self.params.noisy_threshold**2
-            if self._noise_first is not None or not noisy or self._told_noisy():
+            p = self.params
+            counts = var >= min(p.noisy_threshold**2, p.residual_tolerance / 3.0)
+            if self._noise_first is not None or not counts or self._told_noisy():
                 self._set_noise(var if self._noise_first is None else min(var, self._noise_first))
                 return
             self._noise_first = var  # to be confirmed by the next pair
@@ -597,6 +600,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             hop is None
             and p.knot_prior_cycles > 0
             and float(np.max(-np.diff(age), initial=0.0)) <= KNOT_MAX_GAP
+            and self._detector_settled()
             and (
                 cost > self._tolerance(p.knot_tolerance)
                 or self._walk_jump() > self._knot_setting("knot_walk_sigmas")
@@ -625,6 +629,15 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             return
         self._finish_track(predicted, x, drift, cost, u, y, age, ratio)
 
+    def _detector_settled(self) -> bool:
+        """Whether a misfit may be a knot: not before the detector's gain and offset are first
+        fitted (``calibrate``; five tracked readings after a start or a reset). Until then a
+        lock's readings misfit by the detector's error (a rig's calibrated full scale 0.4-2 %
+        off), and a knot test explains that as a knot: one taken at the first reading after the
+        lock that came a step late put the drift wrong and lost the lock (simulated rig, hard,
+        gain 2 % off, 15 % of the commands late; docs/rig.md)."""
+        return not self.params.calibrate or self.calibration.detector_fitted
+
     def _finish_track(self, predicted, x, drift, cost, u, y, age, ratio, deadline=None) -> None:
         """Take a tracking fit (x, drift, cost) of the window (u, y, age): iterate further if
         its readings left the model (until ``deadline``, if given), count a bad fit (keep the
@@ -632,6 +645,18 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         p = self.params
         fitted_ratio = self._ratio
         lost = self._tolerance(p.lost_tolerance)
+        if cost > lost and p.calibrate and not self.calibration.detector_fitted:
+            # A lock whose detector was never fitted: its misfit may be the detector's (a gain
+            # 2 % off misfits a lock by 1e-5, past lost_tolerance, while the low readings of the
+            # acquisition fitted). Fit the detector to this fit's predictions, then the path to
+            # the corrected readings, as the acquisition does when it does not fit.
+            pred = self._predict(x[None], u, age, drift)[0]
+            if self.calibration.fit_detector(pred, self._window(raw=True)[1][-len(u) :]):
+                u, y, age = self._window()
+                x, drift, cost = self._fit_path(
+                    predicted, self.drift, u, y, age, p.iterations, ratio=ratio, deadline=deadline
+                )
+                fitted_ratio = self._ratio
         if cost > lost:  # a knot of the drift, a fast walk: iterate further before giving up
             x, drift, cost = self._fit_path(
                 predicted, self.drift, u, y, age, p.iterations, ratio=ratio, deadline=deadline
