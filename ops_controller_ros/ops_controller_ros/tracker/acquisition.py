@@ -82,14 +82,20 @@ class Acquisition:
         predictions, then refine again on the corrected readings (a generator, as
         :meth:`_acquire`); returns (x, fitted_drift, cost, i)."""
         p = self.params
-        pred = self._predict(x[i : i + 1], u, age, fitted_drift)[0]
-        if self.calibration.fit_detector(pred, self._window(raw=True)[1][-len(u) :]):
+        if self._fit_detector_to(x[i], fitted_drift, u, age):
             y = self.calibration.correct(self._window(raw=True)[1][-len(u) :])
             z = np.concatenate([x, np.tile(fitted_drift, (len(x), 1))], axis=1)
             z, cost = yield from self._refine(z, u, y, age, None, p.iterations)
             i = int(np.argmin(cost))
             x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         return x, fitted_drift, cost, i
+
+    def _fit_detector_to(self, x, drift, u, age) -> bool:
+        """Fit the detector's gain and offset to the window's readings as the errors ``x`` (N,)
+        and ``drift`` predict them (an acquisition, or a fresh lock, that does not fit); True
+        if the fit was taken."""
+        pred = self._predict(x[None], u, age, drift)[0]
+        return self.calibration.fit_detector(pred, self._window(raw=True)[1][-len(u) :])
 
     def _start_tracking(self, x: np.ndarray) -> None:
         """Track from the acquired estimate x (cycles)."""

@@ -645,19 +645,13 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         p = self.params
         fitted_ratio = self._ratio
         lost = self._tolerance(p.lost_tolerance)
-        if cost > lost and p.calibrate and not self.calibration.detector_fitted:
-            # A lock whose detector was never fitted: its misfit may be the detector's (a gain
-            # 2 % off misfits a lock by 1e-5, past lost_tolerance, while the low readings of the
-            # acquisition fitted). Fit the detector to this fit's predictions, then the path to
-            # the corrected readings, as the acquisition does when it does not fit.
-            pred = self._predict(x[None], u, age, drift)[0]
-            if self.calibration.fit_detector(pred, self._window(raw=True)[1][-len(u) :]):
-                u, y, age = self._window()
-                x, drift, cost = self._fit_path(
-                    predicted, self.drift, u, y, age, p.iterations, ratio=ratio, deadline=deadline
-                )
-                fitted_ratio = self._ratio
         if cost > lost:  # a knot of the drift, a fast walk: iterate further before giving up
+            if not self._detector_settled() and self._fit_detector_to(x, drift, u, age):
+                # A lock whose detector was never fitted: its misfit may be the detector's (a
+                # gain 2 % off misfits a lock by 1e-5, past lost_tolerance, while the low
+                # readings of the acquisition fitted). The fit below then takes the corrected
+                # readings, as the acquisition does when it does not fit.
+                u, y, age = self._window()
             x, drift, cost = self._fit_path(
                 predicted, self.drift, u, y, age, p.iterations, ratio=ratio, deadline=deadline
             )
