@@ -43,6 +43,9 @@ class ModelCalibration:
         self.gain = 1.0
         self.offset = 0.0
         self.detector_fitted = False  # the gain and offset fitted since start or reset
+        # ... by an acquisition only: to low readings, where the delay errors move the slot
+        # energies as much as the gain does (see PhaseTracker._detector_settled)
+        self.detector_provisional = False
         self._line = np.zeros(5)  # sums of 1, f, y, f f, f y (forgetting)
         self._normal = np.zeros((2, 2))  # J^T J of (log wavelength, log width)
         self._rhs = np.zeros(2)  # J^T r
@@ -92,20 +95,21 @@ class ModelCalibration:
         """Back to the nominal detector (gain 1, offset 0); True if that changed anything."""
         changed = (self.gain, self.offset) != (1.0, 0.0)
         self.gain, self.offset = 1.0, 0.0
-        self.detector_fitted = False
+        self.detector_fitted = self.detector_provisional = False
         self._line = np.zeros(5)
         return changed
 
-    def fit_detector(self, predicted: np.ndarray, raw: np.ndarray) -> bool:
+    def fit_detector(self, predicted: np.ndarray, raw: np.ndarray, provisional=False) -> bool:
         """Fit gain and offset to one window (model-predicted and detected readings, (K, S + 1));
-        False (nothing changed) where the window does not determine a plausible line."""
+        False (nothing changed) where the window does not determine a plausible line.
+        ``provisional``: an acquisition's fit, to be fitted again on locked readings."""
         f, y = predicted[:, :-1].ravel(), raw[:, :-1].ravel()
         line = np.array([f.size, f.sum(), y.sum(), f @ f, f @ y])
         gain, offset = _solve_line(line)
         if not 0.05 <= gain <= 20.0:
             return False
         self.gain, self.offset = gain, offset
-        self.detector_fitted = True
+        self.detector_fitted, self.detector_provisional = True, bool(provisional)
         self._line = line
         return True
 
@@ -153,6 +157,10 @@ class ModelCalibration:
         )
         self._normal = k * self._normal + jac @ jac.T
         self._rhs = k * self._rhs + jac @ r
+
+    def scale_gain(self, factor: float) -> None:
+        """The gain times ``factor`` (a tracking fit's, see the tracker's ``lock_gain_walk``)."""
+        self.gain *= factor
 
     def _observe_detector(self, f: np.ndarray, y: np.ndarray) -> None:
         """The detector's line from one reading's predicted and detected energies (each reading

@@ -13,10 +13,14 @@ from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 
-def _held_with_a_gain_off(seed: int, gain: float = 1.02, p_late: float = 0.15, steps=500):
+def _held_with_a_gain_off(
+    seed: int, gain: float = 1.02, p_late: float = 0.15, steps=500, p_gap: float = 0.0
+):
     """(share of readings 50.. >= 0.95, knots taken, fitted gain) in hard mode when the slot
     energies read ``gain`` times high and, as over DDS, ``p_late`` of the commands are a step
-    late (the rig stepped once more on the one before; told by the step count)."""
+    late (the rig stepped once more on the one before; told by the step count) and ``p_gap``
+    of them 2-5 steps late (a tracker slow for a moment: the node tells the steps and that the
+    reading's step took the command)."""
     config = make_config(5, "hard", "test")
     sim = BatchedSimulation(config, 1, seed=seed)
     tracker = PhaseTracker(config, TrackerParams(power_weight=0.0), seed=seed)
@@ -25,12 +29,16 @@ def _held_with_a_gain_off(seed: int, gain: float = 1.02, p_late: float = 0.15, s
     before, held = None, []
     for step in range(steps):
         command = next_command(tracker)
-        late = before is not None and rng.random() < p_late
-        if late:
+        extra = int(before is not None and rng.random() < p_late)
+        if p_gap and before is not None and rng.random() < p_gap:
+            extra = int(rng.integers(2, 6))
+        for _ in range(extra):
             sim.step_setpoints(before[None])
         res = sim.step_setpoints(command[None])
         energies = gain * res.pulse_energies[0]
-        tracker.observe(min(float(np.sum(energies**2)), 1.0), energies, steps=1 + late)
+        power = min(float(np.sum(energies**2)), 1.0)
+        age = 0 if p_gap else None
+        tracker.observe(power, energies, steps=1 + extra, command_age=age)
         tracker.think()
         before = command
         if step >= 50:
@@ -47,6 +55,32 @@ def test_a_lock_on_a_detector_2_percent_off_holds_through_late_commands():
     assert min(held) >= 0.98, runs
     assert sum(knots) <= 20, runs
     assert all(abs(g - 1.02) < 0.005 for g in gains), runs
+
+
+def test_a_detector_the_acquisition_fitted_wrong_is_fitted_again_at_the_lock():
+    """On a rig (``power_weight`` 0) nothing but the excursions pins the slot energies' level.
+    An acquisition that fits the detector to its low readings was seen 1 % off (hard, seed 8,
+    an exact detector): the lock then read the gain's error as delay errors, took 237 false
+    knots and held 47 % of its readings. The first window after the lock fits the gain too
+    (``lock_gain_walk``): it holds, with the gain back at 1."""
+    held, knots, gain = _held_with_a_gain_off(8, gain=1.0, p_late=0.0, steps=300)
+    assert held >= 0.98, (held, knots, gain)
+    assert knots <= 5, (held, knots, gain)
+    assert abs(gain - 1.0) < 0.003, (held, knots, gain)
+    # the fit of the gain is no part of the in-process tracker (its power pins the level)
+    assert PhaseTracker(make_config(5, "hard", "test"), seed=1)._gain_prior() == 0.0
+
+
+def test_a_lock_with_a_gain_off_holds_through_a_slow_tracker():
+    """Readings 2-5 steps apart now and then (a tracker slow for a moment, as over DDS after
+    a lock), the slot energies 1.6 % high. Before the gain fit, seeds 1-20 held 0.416-1.0
+    with 385 knots between them; these four 96.8 / 41.6 / 95.2 / 96.8 % with 290 knots (a
+    gain fitted a fraction of a percent off, and knots taken for it). Now seeds 1-20 hold
+    0.992-1.0, with 11 knots."""
+    runs = [_held_with_a_gain_off(s, 1.016, 0.15, 300, p_gap=0.1) for s in (5, 8, 12, 18)]
+    assert all(held >= 0.98 for held, _, _ in runs), runs
+    assert sum(knots for _, knots, _ in runs) <= 20, runs
+    assert all(abs(g - 1.016) < 0.003 for _, _, g in runs), runs
 
 
 def test_no_knot_test_before_the_detector_is_fitted():

@@ -82,7 +82,7 @@ class Acquisition:
         predictions, then refine again on the corrected readings (a generator, as
         :meth:`_acquire`); returns (x, fitted_drift, cost, i)."""
         p = self.params
-        if self._fit_detector_to(x[i], fitted_drift, u, age):
+        if self._fit_detector_to(x[i], fitted_drift, u, age, provisional=True):
             y = self.calibration.correct(self._window(raw=True)[1][-len(u) :])
             z = np.concatenate([x, np.tile(fitted_drift, (len(x), 1))], axis=1)
             z, cost = yield from self._refine(z, u, y, age, None, p.iterations)
@@ -90,17 +90,22 @@ class Acquisition:
             x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         return x, fitted_drift, cost, i
 
-    def _fit_detector_to(self, x, drift, u, age) -> bool:
+    def _fit_detector_to(self, x, drift, u, age, last=None, provisional=False) -> bool:
         """Fit the detector's gain and offset to the window's readings as the errors ``x`` (N,)
-        and ``drift`` predict them (an acquisition, or a fresh lock, that does not fit); True
-        if the fit was taken."""
+        and ``drift`` predict them (an acquisition, or a fresh lock, that does not fit), or to
+        its ``last`` readings only; True if the fit was taken. ``provisional``: an
+        acquisition's (see :meth:`_detector_settled`)."""
         pred = self._predict(x[None], u, age, drift)[0]
-        return self.calibration.fit_detector(pred, self._window(raw=True)[1][-len(u) :])
+        raw = self._window(raw=True)[1][-len(u) :]
+        if last is not None:
+            pred, raw = pred[-last:], raw[-last:]
+        return self.calibration.fit_detector(pred, raw, provisional)
 
     def _start_tracking(self, x: np.ndarray) -> None:
         """Track from the acquired estimate x (cycles)."""
         self.estimate = wrap(x)
         self.drift = np.zeros(self.stage)
+        self._lock_tick = self._tick
 
     def _recover(self) -> None:
         """A local re-fit of the errors and the drift to the readings since the fit failed,

@@ -22,7 +22,8 @@ HOP_RATIO_PRIOR = 0.05  # prior std of the period error fitted over a window wit
 class PathFits:
     """M moving-horizon fits (:func:`fit_paths`): errors at the latest reading x (M, N), drift
     (M, N), mean squared residual of the readings (M,), the path (M, K, N), the whole normalized
-    cost (M,) and the fitted period error r (M,; zeros when not fitted)."""
+    cost (M,), the fitted period error r (M,; zeros when not fitted) and the fitted relative
+    gain of the slot energies g (M,; zeros when not fitted)."""
 
     x: np.ndarray
     drift: np.ndarray
@@ -30,6 +31,7 @@ class PathFits:
     path: np.ndarray
     objective: np.ndarray
     ratio: np.ndarray
+    gain: np.ndarray
 
 
 def wrap(cycles):
@@ -99,7 +101,8 @@ class PathProblem(NamedTuple):
     """What a path fit of M starts over one window holds fixed: the model, the window, the
     weights, and the normal equations' parts that do not depend on the variables (the walk
     between readings, linear, and the priors). The variables z (M, D): the path (K * N), the
-    drift (N), then r (if ``ratio``), then the knot's change (if knots)."""
+    drift (N), then r (if ``ratio``), then g (if ``gain`` >= 0), then the knot's change (if
+    knots)."""
 
     stacker: object
     period_fs: float
@@ -107,6 +110,7 @@ class PathProblem(NamedTuple):
     u_centred: np.ndarray  # (K, N) set-points minus their mean (d phase / d r)
     y: np.ndarray  # (K, S + 1) readings
     ratio: bool  # r is fitted (variable nz)
+    gain: int  # the variable of g, the slot energies' relative gain (-1: not fitted)
     nz: int  # K * N + N: the path and the drift
     d: int  # all variables
     r_sd: float  # std of a reading about the model
@@ -146,20 +150,37 @@ def _add_knots(walk, prior_w, knots, gaps, k: int, n: int, d: int, knot_prior: f
 
 
 def path_problem(
-    stacker, period_fs, u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior
+    stacker,
+    period_fs,
+    u,
+    y,
+    age,
+    drift,
+    r_sd,
+    w_sd,
+    drift_prior,
+    ratio,
+    knots,
+    knot_prior,
+    gain_prior=0.0,
 ):
     """The :class:`PathProblem` of M starts (``drift`` (M, N) the starts' drifts, also the
-    prior's mean; ``drift_prior`` (M, N) its std)."""
+    prior's mean; ``drift_prior`` (M, N) its std; ``gain_prior`` > 0: g is fitted, with that
+    prior std about 0)."""
     k, n = u.shape
     m = drift.shape[0]
-    d = k * n + n + (1 if ratio else 0) + (0 if knots is None else 1)
+    fits_gain = gain_prior > 0.0
+    d = k * n + n + (1 if ratio else 0) + (1 if fits_gain else 0) + (0 if knots is None else 1)
     nz = k * n + n
+    gain = nz + (1 if ratio else 0) if fits_gain else -1
     gaps = np.maximum(age[:-1] - age[1:], 1.0)  # steps between consecutive readings
     walk = np.broadcast_to(_walk_rows(k, n, d, gaps), (m, (k - 1) * n, d))
     prior_w = np.zeros((m, d))
     prior_w[:, k * n : nz] = 1.0 / drift_prior**2
     if ratio:
         prior_w[:, nz] = 1.0 / HOP_RATIO_PRIOR**2
+    if fits_gain:
+        prior_w[:, gain] = 1.0 / gain_prior**2
     if knots is not None:
         walk = _add_knots(walk, prior_w, knots, gaps, k, n, d, knot_prior)
     prior_mean = np.zeros((m, d))
@@ -172,6 +193,7 @@ def path_problem(
         u_centred=u - u.mean(axis=0),
         y=y,
         ratio=ratio,
+        gain=gain,
         nz=nz,
         d=d,
         r_sd=r_sd,
@@ -197,6 +219,9 @@ def path_residuals(pb: PathProblem, z: np.ndarray, with_jacobian: bool):
         pts = pts[:, :, None, :] + pb.offsets[None, None]  # (M, K, N + 1, N)
     out = pb.stacker.evaluate(pts.reshape(-1, n) * pb.period_fs)
     pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
+    if pb.gain >= 0:  # the slot energies (not the power) times 1 + g
+        scale = np.repeat(1.0 + z[:, pb.gain], pred.shape[0] // m)
+        pred[:, :-1] *= scale[:, None]
     if not with_jacobian:
         return pred.reshape(m, k, -1) - pb.y[None], None
     pred = pred.reshape(m, k, n + 1, -1)
@@ -231,6 +256,19 @@ def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
         jtj[:, nz, blocks] += cross
         jtj[:, nz, nz] += np.einsum("mkr,mkr->m", g, g) / r_var
         jtr[:, nz] += np.einsum("mkr,mkr->m", g, err) / r_var
+    if pb.gain >= 0:  # d prediction / d g = the slot energies at 1 + g = 1
+        gi = pb.gain
+        f = (err + pb.y[None]) / (1.0 + z[:, gi])[:, None, None]
+        f[:, :, -1] = 0.0
+        cross = np.einsum("mkri,mkr->mki", jac_k, f) / r_var
+        jtj[:, blocks, gi] += cross
+        jtj[:, gi, blocks] += cross
+        jtj[:, gi, gi] += np.einsum("mkr,mkr->m", f, f) / r_var
+        jtr[:, gi] += np.einsum("mkr,mkr->m", f, err) / r_var
+        if pb.ratio:
+            both = np.einsum("mkr,mkr->m", g, f) / r_var
+            jtj[:, nz, gi] += both
+            jtj[:, gi, nz] += both
     idx = np.arange(pb.d)
     jtj[:, idx, idx] += pb.prior_w[i]
     jtr += pb.prior_w[i] * (z - pb.prior_mean[i])
@@ -317,6 +355,11 @@ class PathFitRun:
     ``change``, prior std ``knot_prior``); the path before the knot keeps the drift mu and its
     prior. The returned drift is the one after the knot.
 
+    ``gain_prior`` > 0: also fit g, the slot energies' gain over the readings' minus 1 (prior
+    std ``gain_prior`` about 0): where nothing else pins their level (a rig's power is computed
+    from the same trace), a gain a fraction of a percent off reads as delay errors that the
+    excursions then contradict, and the tracker takes knots that are none.
+
     ``prune``: (iterations, keep): after that many iterations only the ``keep`` starts of
     lowest cost iterate on, and the first (no knot: the one the others must beat). ``path0``:
     (M, K, N) the starts' paths (by default straight back from x_now by the drift).
@@ -346,15 +389,15 @@ class PathFitRun:
         prune=None,
         path0=None,
         chunk=None,
+        gain_prior: float = 0.0,
     ):
         k, n = u.shape
         m = x_now.shape[0]
-        pb = path_problem(
-            stacker, period_fs, u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior
-        )
+        fixed = (u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior, gain_prior)
+        pb = path_problem(stacker, period_fs, *fixed)
         if path0 is None:  # the straight path back from x_now by the drift
             path0 = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
-        extra = np.zeros((m, 1)) if ratio else np.zeros((m, 0))
+        extra = np.zeros((m, (1 if ratio else 0) + (1 if pb.gain >= 0 else 0)))
         change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
         self._pb, self._k, self._n, self._m, self._knots = pb, k, n, m, knots
         self._z = np.concatenate([path0.reshape(m, k * n), drift, extra, change], axis=1)
@@ -399,4 +442,5 @@ class PathFitRun:
             path=z[:, : k * n].reshape(m, k, n).copy(),  # the fitted errors at every reading
             objective=self._objective.copy(),  # each fit's whole normalized cost
             ratio=fitted_ratio,
+            gain=z[:, pb.gain].copy() if pb.gain >= 0 else np.zeros(m),
         )

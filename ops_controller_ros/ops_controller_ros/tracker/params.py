@@ -193,6 +193,21 @@ class TrackerParams:
         1.0,
         node=True,
     )
+    # ... and where it weighs nothing, nothing but the excursions pins the slot energies'
+    # level: a detector gain 0.3 % off reads as delay errors of ~0.01 cycles, which the
+    # excursions contradict (misfits, false knots, lost locks on the simulated rig; a rig's
+    # calibrated full scale is 0.4-2 % off, and an acquisition's own fit of it was seen 1 %
+    # off). The tracking fits of the first window after an acquisition's lock then fit the
+    # gain too, with this prior std about the present one; later fits leave it to the
+    # detector's line (a gain free in every fit explained the level lost to a drift estimate
+    # run ahead, and took knots that were none).
+    lock_gain_walk: float = _declare(
+        0.005,
+        "how far one tracking fit in the first window after a lock may move the detector's "
+        "gain where power_weight is 0 (relative std; 0: never)",
+        0.0,
+        0.1,
+    )
     misses: int = _declare(3, "bad fits in a row before recovering", 1)
     # Knots of the drift (a stage's slope changes): a tracking fit whose residual exceeds
     # knot_tolerance (or whose path jumps, knot_walk_sigmas) is tried again under one hypothesis
