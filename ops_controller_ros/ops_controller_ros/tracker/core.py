@@ -665,9 +665,9 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         p = self.params
         fitted_ratio = self._ratio
         lost = self._tolerance(p.lost_tolerance)
-        provisional = p.calibrate and self.calibration.detector_provisional
         refitted = False
-        if (cost > lost or provisional) and not self._detector_settled():
+        unsettled = not self._detector_settled()
+        if unsettled and (cost > lost or self.calibration.detector_provisional):
             # A lock whose detector was never fitted, or fitted by the acquisition only: its
             # misfit may be the detector's (a gain 2 % off misfits a lock by 1e-5, past
             # lost_tolerance, while the low readings of the acquisition fitted). Fitted again
