@@ -125,6 +125,11 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self._noise_tries = 0  # repeated readings that came steps apart (no measure of noise)
         self._noise_first = None  # a noisy first measure, to be confirmed by a second
         self._fit_vars: deque = deque(maxlen=FIT_VAR_FITS)  # residuals of tracking fits
+        # noise variances of the tracking fits' residuals, read from their changes from one
+        # reading to the next (:meth:`_note_fit_noise`), and whether they found the detector
+        # noisy (kept)
+        self._white_vars: deque = deque(maxlen=FIT_VAR_FITS)
+        self._fits_noisy = False
         self._tick = 0  # readings taken
         self._step = 0  # simulator (or rig) steps up to the latest reading
         self._gap = 1  # steps between the last two readings
@@ -375,7 +380,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         instead of the whole length in one reading of N: the same information per reading and
         the same cost in power (measured: sqrt(N) times the length lost 7 % of the power at
         sigma = 0.01)."""
-        noise = max(self.params.detector_noise**2, self._noise_var or 0.0) ** 0.5
+        noise = self._noise_var_assumed() ** 0.5
         drift = self.params.drift_dither_gain * float(np.max(np.abs(self.drift)))
         return max(
             self.params.hold_dither_cycles, self.params.noisy_dither_factor * noise**0.5, drift
@@ -385,8 +390,18 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         """Mean squared residual that still counts as a fit: the base tolerance plus three times
         the detector's noise variance (the assumed one, or the one measured from a repeated
         reading, whichever is larger)."""
-        noise_var = max(self.params.detector_noise**2, self._noise_var or 0.0)
+        noise_var = self._noise_var_assumed()
         return (self.params.residual_tolerance if base is None else base) + 3.0 * noise_var
+
+    def _noise_var_assumed(self) -> float:
+        """The detector's noise variance the excursion and the tolerance are sized for: the
+        assumed one (``detector_noise``), the one measured from the repeated first reading, and
+        once the fits found the detector noisy (``fit_noisy_threshold``) the one they found,
+        whichever is largest."""
+        var = max(self.params.detector_noise**2, self._noise_var or 0.0)
+        if self._fits_noisy:
+            var = max(var, float(np.median(self._white_vars)))
+        return var
 
     def _predict(self, x: np.ndarray, u: np.ndarray, age: np.ndarray, drift) -> np.ndarray:
         """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles."""
@@ -475,10 +490,36 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         return source or p.detector_noise >= p.told_noisy_threshold
 
     def _noisy(self) -> bool:
-        """Told noisy (:meth:`_told_noisy`), or a noise measured of at least
-        ``noisy_threshold``."""
+        """Told noisy (:meth:`_told_noisy`), a noise measured of at least ``noisy_threshold``,
+        or found noisy by the tracking fits (:meth:`_note_fit_noise`)."""
         measured = self._noise_var or 0.0
-        return self._told_noisy() or measured >= self.params.noisy_threshold**2
+        return self._told_noisy() or measured >= self.params.noisy_threshold**2 or self._fits_noisy
+
+    def _note_fit_noise(self, u, y) -> None:
+        """The detector's noise as the tracking fit of the window (u, y) just taken sees it, and
+        the detector taken as noisy from then on (with the longer window) once the median of
+        the last ``FIT_VAR_FITS`` such figures reaches ``fit_noisy_threshold`` (squared).
+
+        The figure is half the mean squared change of the slot energies' residuals from one
+        reading to the next, at the fitted path: a detector's noise is new in every reading,
+        while a misfit of the model changes slowly. The residuals' own level would not tell
+        them apart: on a clean detector in extreme mode some episodes misfit by 1-2e-4 (std)
+        for hundreds of readings, more in a knot's wake; their changes stay below 1e-4 (20
+        seeds x 300 readings), and read a noise of 5e-4 as 4.4-5.3e-4."""
+        threshold = self.params.fit_noisy_threshold
+        if self._noisy() or not threshold or self._path is None:
+            return  # (one told or measured noisy keeps its sizing)
+        if self._path.shape != u.shape or len(u) < 2:
+            return
+        residual = self.stacker.evaluate((u + self._path) * self.period_fs).slot_energies
+        change = np.diff(residual - y[:, :-1], axis=0)
+        self._white_vars.append(float(np.mean(change * change)) / 2.0)
+        if len(self._white_vars) < FIT_VAR_FITS:
+            return  # (the median of fewer, even of 5 at twice the threshold, took knot wakes)
+        if float(np.median(self._white_vars)) >= threshold**2:
+            self._fits_noisy = True
+            self._window_len = self._fit_window(True)
+            self._history = deque(self._history, maxlen=self._window_len)
 
     def _reading_sd(self) -> float:
         """The std of a reading about the model that the path fits assume: ``fit_noise_floor``
@@ -694,6 +735,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
             return
         self._bad_fits = 0
         self._fit_vars.append(cost)
+        self._note_fit_noise(u, y)
         self.drift = self._bounded(drift)
         self.calibration.scale_gain(1.0 + self._gain_step)
         # Not wrapped to one period: the estimate follows the delays continuously, so set-point

@@ -104,6 +104,17 @@ class TrackerParams:
         0.0,
         low_open=True,
     )
+    # ... and the noise the tracking fits find (the median over their last 25 of half the mean
+    # squared change of the residuals from one reading to the next): the repeated first reading,
+    # taken far from the optimum, also sees the lines' jitter (a clean detector in hard mode
+    # reads 2-4e-4 there), and the residuals' level also holds the model's misfit (1-2e-4 in
+    # some extreme episodes). Untold and taken as clean, a noise of 5e-4 to 1e-3 was read as
+    # knots: hard mode, 40-120 false knots in 300 readings (docs/tracker.md).
+    fit_noisy_threshold: float = _declare(
+        0.0002,
+        "noise std the tracking fits find, from which the detector counts as noisy (0: never)",
+        0.0,
+    )
     acquire_dither_cycles: float = _declare(
         0.02, "excursion per stage while acquiring, cycles", 0.0, 0.25, low_open=True
     )
