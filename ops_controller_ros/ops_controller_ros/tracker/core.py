@@ -388,8 +388,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
 
     def _tolerance(self, base: float | None = None) -> float:
         """Mean squared residual that still counts as a fit: the base tolerance plus three times
-        the detector's noise variance (the assumed one, or the one measured from a repeated
-        reading, whichever is larger)."""
+        the detector's noise variance (:meth:`_noise_var_assumed`)."""
         noise_var = self._noise_var_assumed()
         return (self.params.residual_tolerance if base is None else base) + 3.0 * noise_var
 
