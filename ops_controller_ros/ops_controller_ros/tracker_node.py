@@ -175,13 +175,17 @@ class TrackerNode(ControllerLoopNode):
         )
 
     def _detector_note(self) -> str:
-        """The noise measured from the repeated first reading, and whether the tracker took the
-        detector as noisy (longer fits, stiffer drift, larger excursions): a rig whose first
-        two readings saw its delay lines still moving reads noisier than it is."""
-        noise = self.ctrl.measured_noise
-        if noise is None:
+        """The noise measured from the repeated first reading, the one the tracking fits find,
+        and whether the tracker took the detector as noisy (longer fits, stiffer drift, larger
+        excursions): a rig whose first two readings saw its delay lines still moving reads
+        noisier there than it is; the fits read the detector's own."""
+        noise, fits = self.ctrl.measured_noise, self.ctrl.fit_noise
+        if noise is None and fits is None:
             return ""
-        return f", noise {noise:.4f}" + (" (noisy)" if self.ctrl.noisy else "")
+        note = "" if noise is None else f", noise {noise:.4f}"
+        note += "" if fits is None else f", fits {fits:.4f}"
+        # (no parentheses: they would end the line's "(locked; ...)" early, see _knot_note)
+        return note + (", noisy" if self.ctrl.noisy else "")
 
 
 def main(args=None):

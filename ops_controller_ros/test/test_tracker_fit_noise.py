@@ -40,8 +40,7 @@ def test_an_untold_noise_is_found_by_the_fits_and_the_lock_holds():
     for tracker, _ in runs:
         assert tracker.noisy and tracker.window_length == tracker.params.noisy_window
         assert tracker.measured_noise < tracker.params.noisy_threshold  # not by the first reading
-        found = float(np.median(tracker._white_vars)) ** 0.5
-        assert 0.7e-3 < found < 1.3e-3, found
+        assert 0.7e-3 < tracker.fit_noise < 1.3e-3, tracker.fit_noise
     held = [h for _, h in runs]
     knots = sum(t.knots for t, _ in runs)
     assert np.mean(held) >= 0.95 and min(held) >= 0.9, held
@@ -65,4 +64,5 @@ def test_a_clean_detector_stays_clean():
     ):
         tracker, _ = _run(seed, mode=mode, power_weight=weight)
         assert not tracker.noisy, (mode, seed)
+        assert tracker.fit_noise < 1e-4, (mode, seed, tracker.fit_noise)
         assert tracker.window_length == tracker.params.window

@@ -434,6 +434,14 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         return None if self._noise_var is None else self._noise_var**0.5
 
     @property
+    def fit_noise(self) -> float | None:
+        """The detector's noise std as the tracking fits find it (:meth:`_note_fit_noise`; the
+        median of their last 25 figures), None before the first five."""
+        if len(self._white_vars) < FIT_VAR_MIN:
+            return None
+        return float(np.median(self._white_vars)) ** 0.5
+
+    @property
     def noisy(self) -> bool:
         """Whether the tracker takes its detector as noisy (told, or measured so)."""
         return self._noisy()
