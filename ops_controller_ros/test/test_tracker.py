@@ -334,12 +334,12 @@ def test_told_the_latency_it_holds_hard_mode(latency):
     assert told[-50:].mean() > blind[-50:].mean() + 0.3, (told[-50:].mean(), blind[-50:].mean())
 
 
-def _digitized_run(seed: int, told: bool) -> np.ndarray:
+def _digitized_run(seed: int, told: bool, params: TrackerParams | None = None) -> np.ndarray:
     rig = make_config(stage=5, mode="hard", split="test", trace_adc_bits=8, trace_full_scale=1.25)
     sim = BatchedSimulation(rig, num_envs=1, seed=seed)
     r = sim.reset(seed=seed)
     model = rig if told else make_config(stage=5, mode="hard", split="test")
-    tracker = PhaseTracker(model, setpoints_fs=r.setpoints_fs[0], seed=seed)
+    tracker = PhaseTracker(model, params, setpoints_fs=r.setpoints_fs[0], seed=seed)
     assert (tracker.params.detector_noise > 0.002) == told  # 0.6 of a 1.25 / 255 step
     powers = []
     for _ in range(150):
@@ -352,11 +352,16 @@ def _digitized_run(seed: int, told: bool) -> np.ndarray:
 def test_told_of_an_8_bit_trace_it_holds_hard_mode():
     """Issue 30: an 8-bit trace took the untold tracker to 0.86. Told the digitizer, it weighs
     the readings by their rounding (ops_sim_ros.rig.reading_noise_std). Measured (seeds 3-5,
-    mean of the last 50 of 150 readings): told 0.967-0.982, untold 0.775-0.895."""
+    mean of the last 50 of 150 readings): told 0.967-0.982, untold 0.775-0.895. Untold, the
+    tracking fits now find the rounding as noise (``fit_noisy_threshold``): seeds 3 and 5 read
+    0.992 and 0.972; with that switch off, as before."""
     told = [_digitized_run(seed, True).mean() for seed in (3, 5)]
-    blind = [_digitized_run(seed, False).mean() for seed in (3, 5)]
+    switch_off = TrackerParams(fit_noisy_threshold=0.0)
+    blind = [_digitized_run(seed, False, switch_off).mean() for seed in (3, 5)]
     assert min(told) > 0.95, told
     assert np.mean(told) > np.mean(blind) + 0.03, (told, blind)
+    found = [_digitized_run(seed, False).mean() for seed in (3, 5)]
+    assert min(found) > 0.95, found
 
 
 def test_told_the_actuators_lag_it_holds_hard_mode():
