@@ -399,7 +399,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         whichever is largest."""
         var = max(self.params.detector_noise**2, self._noise_var or 0.0)
         if self._fits_noisy:
-            var = max(var, float(np.median(self._white_vars)))
+            var = max(var, self._white_var())
         return var
 
     def _predict(self, x: np.ndarray, u: np.ndarray, age: np.ndarray, drift) -> np.ndarray:
@@ -439,7 +439,11 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         median of their last 25 figures), None before the first five."""
         if len(self._white_vars) < FIT_VAR_MIN:
             return None
-        return float(np.median(self._white_vars)) ** 0.5
+        return self._white_var() ** 0.5
+
+    def _white_var(self) -> float:
+        """The median of the tracking fits' last noise variances (:meth:`_note_fit_noise`)."""
+        return float(np.median(self._white_vars))
 
     @property
     def noisy(self) -> bool:
@@ -478,8 +482,12 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
     def _set_noise(self, var: float) -> None:
         self._noise_var = var
         if var >= self.params.noisy_threshold**2:
-            self._window_len = self._fit_window(True)
-            self._history = deque(self._history, maxlen=self._window_len)
+            self._take_noisy_window()
+
+    def _take_noisy_window(self) -> None:
+        """Fits take the noisy detector's longer window from the next reading on."""
+        self._window_len = self._fit_window(True)
+        self._history = deque(self._history, maxlen=self._window_len)
 
     def _measuring_noise(self) -> bool:
         """Whether the detector's noise is still to be measured: the first reading is repeated
@@ -514,7 +522,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         for hundreds of readings, more in a knot's wake; their changes stay below 1e-4 (20
         seeds x 300 readings), and read a noise of 5e-4 as 4.4-5.3e-4."""
         threshold = self.params.fit_noisy_threshold
-        if self._noisy() or not threshold or self._path is None:
+        if self._noisy() or not threshold:
             return  # (one told or measured noisy keeps its sizing)
         if self._path.shape != u.shape or len(u) < 2:
             return
@@ -523,10 +531,9 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self._white_vars.append(float(np.mean(change * change)) / 2.0)
         if len(self._white_vars) < FIT_VAR_FITS:
             return  # (the median of fewer, even of 5 at twice the threshold, took knot wakes)
-        if float(np.median(self._white_vars)) >= threshold**2:
+        if self._white_var() >= threshold**2:
             self._fits_noisy = True
-            self._window_len = self._fit_window(True)
-            self._history = deque(self._history, maxlen=self._window_len)
+            self._take_noisy_window()
 
     def _reading_sd(self) -> float:
         """The std of a reading about the model that the path fits assume: ``fit_noise_floor``
