@@ -91,19 +91,20 @@ def test_benchmark_trains_with_the_named_hyperparameter_set(tmp_path):
     assert hp["batch_size"] == 16  # the profile's override on top of the set
 
 
-def _stored_run(root, observation, kind, name, final):
+def _stored_run(root, observation, kind, name, final, seed=0, timesteps=100):
     """A stored run as benchmark writes it (run.json + evaluation.json), final P_N given."""
-    rid = f"n5_easy_{name}" + ("_s0" if kind == "train" else "")
+    rid = f"n5_easy_{name}" + (f"_s{seed}" if kind == "train" else "")
     d = root / "runs" / rid
     d.mkdir(parents=True)
     spec = {"id": rid, "kind": kind, "stage": 5, "mode": "easy", "detector": "total",
-            "observation": observation, "seed": 0 if kind == "train" else None}  # fmt: skip
+            "observation": observation, "seed": seed if kind == "train" else None}  # fmt: skip
     spec["algo" if kind == "train" else "controller"] = name
+    spec["timesteps"] = timesteps
     power = np.full((3, 11), final)
     returns = np.zeros(3)
     split = summarize([{"power": power, "returns": returns}, {"power": power, "returns": returns}])
     ev = {"splits": {"train": split, "test": split}, "transfer": {}}
-    bench_worker.write_json(d / "run.json", {"spec": spec, "timesteps": 100})
+    bench_worker.write_json(d / "run.json", {"spec": spec, "timesteps": timesteps})
     bench_worker.write_json(d / "evaluation.json", ev)
 
 
@@ -123,6 +124,28 @@ def test_report_puts_two_observation_sets_side_by_side(tmp_path):
     td3_test = [ln for ln in text.splitlines() if ln.startswith("| easy | testing | TD3 |")]
     assert td3_test == ["| easy | testing | TD3 | 0.9541 ± 0.0177 | 0.9000 ± 0.0000 (n=1) | "
                         "0.2000 ± 0.0000 (n=1) |"]  # fmt: skip
+
+
+def test_report_pools_one_protocols_seeds_from_several_directories(tmp_path):
+    """--pool: seeds of one cell stored in two directories make one cell over all of them; a
+    repeated run id, or a cell whose runs differ in protocol, is refused (exit 2)."""
+    from ops_gym_bridge.table1 import report
+
+    _stored_run(tmp_path / "first", "authors", "train", "td3", 0.9, seed=0)
+    _stored_run(tmp_path / "first", "authors", "train", "td3", 0.8, seed=1)
+    _stored_run(tmp_path / "more", "authors", "train", "td3", 0.4, seed=2)
+    dirs = [str(tmp_path / "first"), str(tmp_path / "more")]
+    assert report.run([*dirs, "--pool", "--out", str(tmp_path / "out")]) == 0
+    text = (tmp_path / "out" / "table1.md").read_text()
+    assert "| easy | testing | 0.7000 ± 0.2160 (n=3) | 0.9541 ± 0.0177 |" in text
+    assert not (tmp_path / "out" / "table1_sets.md").exists()
+
+    _stored_run(tmp_path / "again", "authors", "train", "td3", 0.5, seed=1)
+    argv = [dirs[0], str(tmp_path / "again"), "--pool", "--out", str(tmp_path / "o2")]
+    assert report.run(argv) == 2  # n5_easy_td3_s1 twice
+    _stored_run(tmp_path / "longer", "authors", "train", "td3", 0.5, seed=3, timesteps=900)
+    argv = [dirs[0], str(tmp_path / "longer"), "--pool", "--out", str(tmp_path / "o3")]
+    assert report.run(argv) == 2  # 100 and 900 steps in one cell
 
 
 def test_the_rig_of_a_benchmark_reaches_training_evaluation_and_controllers(tmp_path):

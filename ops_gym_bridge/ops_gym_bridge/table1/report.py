@@ -14,7 +14,9 @@ random start). Partial results are reported as such: every panel and table names
 
 Several run directories (``report A B --out DIR``, e.g. the same protocol with the authors' and
 the rig's observation set): each one's table and figures go to ``DIR/<name of A>/`` ...,
-and ``DIR/table1_sets.md`` puts their Table 1 cells side by side.
+and ``DIR/table1_sets.md`` puts their Table 1 cells side by side. With ``--pool`` they are
+one set instead (one protocol whose seeds were stored in several directories): one report in
+``DIR``, each cell over all their seeds.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import numpy as np
 
 from .. import cli_args
 from . import figures
-from .runs import ALGO_ORDER, SPLITS, controller_order, load_runs, main_stage
+from .runs import ALGO_ORDER, SPLITS, controller_order, load_runs, main_stage, pool_runs
 
 #: The paper's Table 1 (N = 5): (mode, environment) -> algo -> (mean, std).
 PAPER_TABLE1 = {
@@ -199,7 +201,10 @@ FILES = (
 
 
 def write_report(root: Path, out: Path) -> list[Path]:
-    runs = load_runs(root)
+    return write_runs_report(load_runs(root), out)
+
+
+def write_runs_report(runs: list[dict], out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     rows = table1_rows(runs)
     (out / "table1.csv").write_text(table1_csv(rows))
@@ -224,6 +229,12 @@ def build_parser():
         "OUT/<its name>/ and their Table 1 side by side in OUT/table1_sets.md",
     )
     p.add_argument("--out", required=True, help="directory for the table and figures")
+    p.add_argument(
+        "--pool",
+        action="store_true",
+        help="the run directories are one set (one protocol's seeds stored in several "
+        "directories): one report in OUT, each cell over all their runs",
+    )
     return p
 
 
@@ -235,7 +246,15 @@ def run(argv: list[str] | None = None) -> int:
             print(f"[report] error: {root} is not a directory", file=sys.stderr)
             return 2
     out = Path(args.out)
-    if len(roots) == 1:
+    if args.pool:
+        try:
+            runs = pool_runs(roots)
+        except ValueError as err:
+            print(f"[report] error: {err}", file=sys.stderr)
+            return 2
+        written = write_runs_report(runs, out)
+        print((out / "table1.md").read_text(), flush=True)
+    elif len(roots) == 1:
         written = write_report(roots[0], out)
         print((out / "table1.md").read_text(), flush=True)
     else:

@@ -48,6 +48,47 @@ def load_runs(root: Path) -> list[dict[str, Any]]:
     return runs
 
 
+def pool_runs(roots: list[Path]) -> list[dict[str, Any]]:
+    """The stored runs of several directories as one set: one protocol whose seeds were run into
+    more than one ``--out`` (e.g. seeds 0-2, then 3-9 of one cell). Raises ``ValueError`` when a
+    run id repeats, or when the runs of one cell (stage, mode, controller) differ in detector,
+    observation set, planned training steps, hyperparameters or rig, so no cell mixes two
+    protocols."""
+    runs, where = [], {}
+    for root in roots:
+        for run in load_runs(root):
+            if run["id"] in where:
+                raise ValueError(f"run {run['id']} is stored in both {where[run['id']]} and {root}")
+            where[run["id"]] = root
+            runs.append(run)
+    cells: dict[tuple, dict] = {}
+    for run in runs:
+        cell = (run["stage"], run["mode"], run["name"])
+        setting = _protocol(run)
+        first = cells.setdefault(cell, setting)
+        if first != setting:
+            diff = {k: (first[k], setting[k]) for k in setting if first[k] != setting[k]}
+            raise ValueError(
+                f"the runs of N = {cell[0]} {cell[1]} {cell[2]} differ in {diff}; pool only one "
+                "protocol's runs"
+            )
+    return runs
+
+
+def _protocol(run: dict[str, Any]) -> dict[str, Any]:
+    """What a cell's runs must share to be pooled (the planned steps: a resumed run may stop a
+    few steps past them)."""
+    spec = run["spec"]
+    return {
+        "detector": run["detector"],
+        "observation": run["observation"],
+        "timesteps": spec.get("timesteps", run["timesteps"]),
+        "hyperparams_set": spec.get("hyperparams_set"),
+        "hyperparams": sorted(spec.get("hyperparams") or []),
+        "rig": spec.get("rig") or {},
+    }
+
+
 def _read_training(path: Path) -> np.ndarray | None:
     if not path.exists():
         return None
