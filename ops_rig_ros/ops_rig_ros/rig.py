@@ -61,7 +61,7 @@ class Rig:
         """(normalized trace, estimated power) of a fresh record; needs the calibration."""
         cal = self.config.calibration
         record = self.read_record()
-        trace = extract_trace(record, cal, samples_per_slot)
+        trace = extract_trace(record, cal, samples_per_slot, self.config.trace_baseline)
         if self.full_scale is None:
             return trace, estimate_power(trace, samples_per_slot)
         # The trace keeps the calibration's units: a controller that fits its gain (the

@@ -15,6 +15,9 @@ import numpy as np
 import yaml
 from ops_sim_ros.rig_file import RigFileError, parse_optics, read_rig_mapping
 
+#: Where a trace's reading of no light comes from (``trace_baseline``; ops_rig_ros.trace).
+BASELINES = ("record", "calibrated")
+
 MAX_STAGE = 10
 MAX_VOLTS = 1000.0  # no piezo drive of this project's kind goes beyond
 
@@ -55,6 +58,7 @@ class RigConfig:
     stale_s: float = 0.5
     sweep_span_volts: float = 12.0
     settle_reads: int = 1
+    trace_baseline: str = "record"
     optics: dict = field(default_factory=dict)
     raw: dict = field(default_factory=dict)
 
@@ -71,6 +75,12 @@ def _number(value, key: str, low=-math.inf, high=math.inf) -> float:
     if not (low <= x <= high):
         raise RigConfigError(f"{key} must be in [{low:g}, {high:g}] (got {value!r})")
     return x
+
+
+def _choice(value, key: str, allowed: tuple[str, ...]) -> str:
+    if value not in allowed:
+        raise RigConfigError(f"{key} must be one of {', '.join(allowed)} (got {value!r})")
+    return str(value)
 
 
 def _per_channel(section: dict, name: str, n: int, where: str, required=True, **bounds):
@@ -168,6 +178,7 @@ def load_rig_config(path) -> RigConfig:
         stale_s=_number(raw.get("stale_s", 0.5), "stale_s", 0.01, 60.0),
         sweep_span_volts=_number(raw.get("sweep_span_volts", 12.0), "sweep_span_volts", 0.1, 1e3),
         settle_reads=int(_number(raw.get("settle_reads", 1), "settle_reads", 1, 100)),
+        trace_baseline=_choice(raw.get("trace_baseline", "record"), "trace_baseline", BASELINES),
         optics=optics,
         raw=raw,
     )

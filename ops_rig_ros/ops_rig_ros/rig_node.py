@@ -100,7 +100,8 @@ class RigNode(Node):
         self.get_logger().info(
             f"rig stage={self.stage} rate={self.rate_hz:g} Hz config={v['config']} "
             f"scope={self.rig.source.describe()} "
-            f"piezos={', '.join(a.describe() for a in self.rig.drive.actuators)}"
+            f"piezos={', '.join(a.describe() for a in self.rig.drive.actuators)} "
+            f"trace_baseline={self.rig.config.trace_baseline}"
         )
 
     # ------------------------------------------------------------------ helpers

@@ -6,6 +6,14 @@ around each slot centre (``samples_per_slot`` points spread over one slot, linea
 interpolation, the centre at sample ``samples_per_slot // 2`` as in the simulator's trace) and
 normalizes it, so a perfectly stacked pulse reads 1 in its slot.
 
+The reading of no light it subtracts is, by default, each record's own baseline
+(:func:`record_baseline`, the record half-way between neighbouring slots): the calibration's
+offset comes from a fringe fit made while the stacker drifts, and on the simulated lab it was
+off by -9e-4 to +11e-4 of the full scale. At the stack every slot but one reads that error; a
+positive one reads like light leaking into the empty slots, which only delay errors make, and
+the tracker's fits took it for them (docs/rig.md, "The detector's offset, measured in every
+record"). A detector's offset also moves with temperature long after a calibration.
+
 :func:`estimate_power`: the simulator's P_N / P_max is the detector's second-order signal
 (integral of I^2) over that of the perfect stack. For pulses that keep their shape (delay errors
 of a few fs against a pulse of ~1 ps) every slot's integral of I^2 is its energy squared in
@@ -18,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rig_config import Calibration
+from .rig_config import BASELINES, Calibration
 
 
 class TraceError(ValueError):
@@ -38,8 +46,15 @@ def sample_points(positions: np.ndarray, samples_per_slot: int) -> np.ndarray:
     return (positions[:, None] + offsets[None, :]).ravel()
 
 
-def extract_trace(volts: np.ndarray, cal: Calibration, samples_per_slot: int) -> np.ndarray:
-    """The normalized trace (S * samples_per_slot,) float64 of a record."""
+def extract_trace(
+    volts: np.ndarray, cal: Calibration, samples_per_slot: int, baseline: str = "record"
+) -> np.ndarray:
+    """The normalized trace (S * samples_per_slot,) float64 of a record. ``baseline``:
+    ``record`` subtracts the record's own baseline (:func:`record_baseline`; the calibrated
+    offset where there is one slot only), ``calibrated`` the calibration's offset (a detector
+    whose response has not settled half-way between slots)."""
+    if baseline not in BASELINES:
+        raise ValueError(f"baseline must be one of {', '.join(BASELINES)} (got {baseline!r})")
     volts = np.asarray(volts, dtype=np.float64)
     points = sample_points(cal.slot_positions, samples_per_slot)
     if volts.size < 2 or points.max() > volts.size - 1 or points.min() < 0:
@@ -50,21 +65,30 @@ def extract_trace(volts: np.ndarray, cal: Calibration, samples_per_slot: int) ->
     if not np.all(np.isfinite(volts)):
         raise TraceError("non-finite values in the record")
     raw = np.interp(points, np.arange(volts.size), volts)
-    return (raw - cal.detector_offset_volts) / cal.detector_full_volts
+    offset = cal.detector_offset_volts
+    if baseline == "record" and cal.slot_positions.size > 1:
+        offset = record_baseline(volts, cal.slot_positions)
+    return (raw - offset) / cal.detector_full_volts
+
+
+def record_baseline(volts: np.ndarray, positions: np.ndarray) -> float:
+    """A record's reading of no light: its mean half-way between neighbouring slots, where no
+    pulse is (needs two slots at least)."""
+    volts = np.asarray(volts, dtype=np.float64)
+    between = 0.5 * (positions[1:] + positions[:-1])
+    return float(np.mean(np.interp(between, np.arange(volts.size), volts)))
 
 
 def summed_slots_volts(volts: np.ndarray, positions: np.ndarray) -> float:
-    """The record's slot readings summed, each above the record's own baseline: the mean of
-    the record half-way between neighbouring slots, where no pulse is. Measured in the same
-    record, the baseline takes the offset's error out of the sum (against the calibrated
-    offset, an error of 1 mV, over the 31 slots of N = 5, moved the sum by 31 mV)."""
+    """The record's slot readings summed, each above the record's own baseline
+    (:func:`record_baseline`). Measured in the same record, the baseline takes the offset's
+    error out of the sum (against the calibrated offset, an error of 1 mV, over the 31 slots of
+    N = 5, moved the sum by 31 mV)."""
     volts = np.asarray(volts, dtype=np.float64)
-    index = np.arange(volts.size)
-    centres = np.interp(positions, index, volts)
+    centres = np.interp(positions, np.arange(volts.size), volts)
     if positions.size < 2:
         return float(centres.sum())
-    between = np.interp(0.5 * (positions[1:] + positions[:-1]), index, volts)
-    return float(np.sum(centres - between.mean()))
+    return float(np.sum(centres - record_baseline(volts, positions)))
 
 
 def slot_energies(trace: np.ndarray, samples_per_slot: int) -> np.ndarray:

@@ -30,10 +30,30 @@ def test_extract_trace_normalizes_and_centres():
     x = np.arange(250)
     energies = np.array([0.0, 0.1, 0.0, 0.8, 0.0, 0.1, 0.0])
     record = 0.05 + 0.5 * (np.exp(-0.5 * ((x[:, None] - positions) / 2.4) ** 2) @ energies)
-    trace = extract_trace(record, cal, 8)
+    trace = extract_trace(record, cal, 8, "calibrated")
     np.testing.assert_allclose(trace[4::8], energies, atol=1e-9)
+    # the record's own baseline: the pulses' tails half-way between slots (5 sigma) only
+    np.testing.assert_allclose(extract_trace(record, cal, 8)[4::8], energies, atol=1e-5)
     with pytest.raises(ValueError, match="does not reach"):
         extract_trace(record[:100], cal, 8)
+    with pytest.raises(ValueError, match="baseline must be one of record, calibrated"):
+        extract_trace(record, cal, 8, "dark")
+
+
+def test_the_records_own_baseline_takes_out_an_offset_the_calibration_missed():
+    """A calibrated offset 0.5 mV off (1e-3 of the full scale; calibrate was seen up to 1.1e-3
+    off on the simulated lab) reads as light in every empty slot; the record's baseline, half-way
+    between the slots, does not, and moves with a detector's offset after the calibration."""
+    positions = 40.0 + 24.0 * np.arange(7)
+    x = np.arange(250)
+    energies = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    bumps = np.exp(-0.5 * ((x[:, None] - positions) / 2.4) ** 2) @ energies
+    for true_offset in (0.0495, 0.0512):
+        record = true_offset + 0.5 * bumps
+        cal = Calibration(np.ones(3), np.zeros(3), positions, 0.05, 0.5)
+        told = extract_trace(record, cal, 8, "calibrated")[4::8]
+        assert np.max(np.abs(told - energies)) > 9e-4  # every slot off by the offset's error
+        np.testing.assert_allclose(extract_trace(record, cal, 8)[4::8], energies, atol=1e-5)
 
 
 def test_fit_fringe_recovers_a_sinusoid():

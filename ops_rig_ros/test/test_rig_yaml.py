@@ -18,6 +18,7 @@ from rig_lab_helpers import write_rig_yaml
 def test_simlab_yaml_loads(lab, tmp_path):
     cfg = load_rig_config(write_rig_yaml(lab, tmp_path / "rig.yaml"))
     assert cfg.stage == 3 and cfg.calibration is None
+    assert cfg.trace_baseline == "record"  # the default
     np.testing.assert_allclose(cfg.limits.volts_max, 75.0)
     np.testing.assert_allclose(cfg.limits.park_volts, 0.0)
 
@@ -57,6 +58,7 @@ def test_other_keys(lab, tmp_path):
         ({"scope": None}, "scope is required"),
         ({"actuators": []}, "actuators is required"),
         ({"rate_hz": 0}, "rate_hz"),
+        ({"trace_baseline": "dark"}, "trace_baseline must be one of record, calibrated"),
     ):
         write_rig_yaml(lab, path, **change)
         with pytest.raises(RigConfigError, match=says):

@@ -90,6 +90,7 @@ class Lab:
             "sweep_span_volts": 12.0,
             # a lab rig's piezos answer a move a step late and over a few steps
             "settle_reads": 1 if self.optics.sim.actuator is None else 2,
+            "trace_baseline": "record",  # the pulses are dark half-way between slots
             "optics": {"wavelength_nm": 1030.0, "pulse_fwhm_fs": 1000.0, "detector": "polarizer"},
         }
 
