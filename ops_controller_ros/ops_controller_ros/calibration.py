@@ -162,6 +162,11 @@ class ModelCalibration:
         """The gain times ``factor`` (a tracking fit's, see the tracker's ``lock_gain_walk``)."""
         self.gain *= factor
 
+    def shift_offset(self, level: float) -> None:
+        """The offset moved by ``level`` of the corrected readings (a tracking fit's, see the
+        tracker's ``lock_offset_walk``): in detector units that is ``level`` times the gain."""
+        self.offset += level * self.gain
+
     def _observe_detector(self, f: np.ndarray, y: np.ndarray) -> None:
         """The detector's line from one reading's predicted and detected energies (each reading
         is the latest of a window once)."""

@@ -90,16 +90,22 @@ class Acquisition:
             x, fitted_drift = z[:, : self.stage], z[i, self.stage :]
         return x, fitted_drift, cost, i
 
-    def _fit_detector_to(self, x, drift, u, age, last=None, provisional=False) -> bool:
+    def _fit_detector_to(
+        self, x, drift, u, age, last=None, provisional=False, min_power=0.0
+    ) -> bool:
         """Fit the detector's gain and offset to the window's readings as the errors ``x`` (N,)
         and ``drift`` predict them (an acquisition, or a fresh lock, that does not fit), or to
-        its ``last`` readings only; True if the fit was taken. ``provisional``: an
+        its ``last`` readings only, of those the ones whose power reads ``min_power`` or more;
+        True if the fit was taken (none without such a reading). ``provisional``: an
         acquisition's (see :meth:`_detector_settled`)."""
         pred = self._predict(x[None], u, age, drift)[0]
         raw = self._window(raw=True)[1][-len(u) :]
         if last is not None:
             pred, raw = pred[-last:], raw[-last:]
-        return self.calibration.fit_detector(pred, raw, provisional)
+        near = raw[:, -1] >= min_power
+        if not near.any():
+            return False
+        return self.calibration.fit_detector(pred[near], raw[near], provisional)
 
     def _start_tracking(self, x: np.ndarray) -> None:
         """Track from the acquired estimate x (cycles)."""

@@ -22,8 +22,8 @@ HOP_RATIO_PRIOR = 0.05  # prior std of the period error fitted over a window wit
 class PathFits:
     """M moving-horizon fits (:func:`fit_paths`): errors at the latest reading x (M, N), drift
     (M, N), mean squared residual of the readings (M,), the path (M, K, N), the whole normalized
-    cost (M,), the fitted period error r (M,; zeros when not fitted) and the fitted relative
-    gain of the slot energies g (M,; zeros when not fitted)."""
+    cost (M,), the fitted period error r (M,; zeros when not fitted), the fitted relative
+    gain of the slot energies g and their fitted offset o (M,; zeros when not fitted)."""
 
     x: np.ndarray
     drift: np.ndarray
@@ -32,6 +32,7 @@ class PathFits:
     objective: np.ndarray
     ratio: np.ndarray
     gain: np.ndarray
+    level: np.ndarray
 
 
 def wrap(cycles):
@@ -101,8 +102,8 @@ class PathProblem(NamedTuple):
     """What a path fit of M starts over one window holds fixed: the model, the window, the
     weights, and the normal equations' parts that do not depend on the variables (the walk
     between readings, linear, and the priors). The variables z (M, D): the path (K * N), the
-    drift (N), then r (if ``ratio``), then g (if ``gain`` >= 0), then the knot's change (if
-    knots)."""
+    drift (N), then r (if ``ratio``), then g (if ``gain`` >= 0), then o (if ``level`` >= 0),
+    then the knot's change (if knots)."""
 
     stacker: object
     period_fs: float
@@ -111,6 +112,7 @@ class PathProblem(NamedTuple):
     y: np.ndarray  # (K, S + 1) readings
     ratio: bool  # r is fitted (variable nz)
     gain: int  # the variable of g, the slot energies' relative gain (-1: not fitted)
+    level: int  # the variable of o, the slot energies' offset (-1: not fitted)
     nz: int  # K * N + N: the path and the drift
     d: int  # all variables
     r_sd: float  # std of a reading about the model
@@ -163,16 +165,18 @@ def path_problem(
     knots,
     knot_prior,
     gain_prior=0.0,
+    level_prior=0.0,
 ):
     """The :class:`PathProblem` of M starts (``drift`` (M, N) the starts' drifts, also the
     prior's mean; ``drift_prior`` (M, N) its std; ``gain_prior`` > 0: g is fitted, with that
-    prior std about 0)."""
+    prior std about 0; ``level_prior`` > 0: o too)."""
     k, n = u.shape
     m = drift.shape[0]
-    fits_gain = gain_prior > 0.0
-    d = k * n + n + (1 if ratio else 0) + (1 if fits_gain else 0) + (0 if knots is None else 1)
+    fits_gain, fits_level = gain_prior > 0.0, level_prior > 0.0
     nz = k * n + n
     gain = nz + (1 if ratio else 0) if fits_gain else -1
+    level = nz + (1 if ratio else 0) + (1 if fits_gain else 0) if fits_level else -1
+    d = nz + (1 if ratio else 0) + fits_gain + fits_level + (0 if knots is None else 1)
     gaps = np.maximum(age[:-1] - age[1:], 1.0)  # steps between consecutive readings
     walk = np.broadcast_to(_walk_rows(k, n, d, gaps), (m, (k - 1) * n, d))
     prior_w = np.zeros((m, d))
@@ -181,6 +185,8 @@ def path_problem(
         prior_w[:, nz] = 1.0 / HOP_RATIO_PRIOR**2
     if fits_gain:
         prior_w[:, gain] = 1.0 / gain_prior**2
+    if fits_level:
+        prior_w[:, level] = 1.0 / level_prior**2
     if knots is not None:
         walk = _add_knots(walk, prior_w, knots, gaps, k, n, d, knot_prior)
     prior_mean = np.zeros((m, d))
@@ -194,6 +200,7 @@ def path_problem(
         y=y,
         ratio=ratio,
         gain=gain,
+        level=level,
         nz=nz,
         d=d,
         r_sd=r_sd,
@@ -222,6 +229,8 @@ def path_residuals(pb: PathProblem, z: np.ndarray, with_jacobian: bool):
     if pb.gain >= 0:  # the slot energies (not the power) times 1 + g
         scale = np.repeat(1.0 + z[:, pb.gain], pred.shape[0] // m)
         pred[:, :-1] *= scale[:, None]
+    if pb.level >= 0:  # ... plus o
+        pred[:, :-1] += np.repeat(z[:, pb.level], pred.shape[0] // m)[:, None]
     if not with_jacobian:
         return pred.reshape(m, k, -1) - pb.y[None], None
     pred = pred.reshape(m, k, n + 1, -1)
@@ -258,7 +267,8 @@ def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
         jtr[:, nz] += np.einsum("mkr,mkr->m", g, err) / r_var
     if pb.gain >= 0:  # d prediction / d g = the slot energies at 1 + g = 1
         gi = pb.gain
-        f = (err + pb.y[None]) / (1.0 + z[:, gi])[:, None, None]
+        level = z[:, pb.level, None, None] if pb.level >= 0 else 0.0
+        f = (err + pb.y[None] - level) / (1.0 + z[:, gi])[:, None, None]
         f[:, :, -1] = 0.0
         cross = np.einsum("mkri,mkr->mki", jac_k, f) / r_var
         jtj[:, blocks, gi] += cross
@@ -269,6 +279,23 @@ def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
             both = np.einsum("mkr,mkr->m", g, f) / r_var
             jtj[:, nz, gi] += both
             jtj[:, gi, nz] += both
+    if pb.level >= 0:  # d prediction / d o = 1 for every slot energy, 0 for the power
+        li = pb.level
+        ones = np.ones(err.shape[1:])
+        ones[:, -1] = 0.0
+        cross = np.einsum("mkri,kr->mki", jac_k, ones) / r_var
+        jtj[:, blocks, li] += cross
+        jtj[:, li, blocks] += cross
+        jtj[:, li, li] += ones.sum() / r_var
+        jtr[:, li] += np.einsum("mkr,kr->m", err, ones) / r_var
+        if pb.ratio:
+            both = np.einsum("mkr,kr->m", g, ones) / r_var
+            jtj[:, nz, li] += both
+            jtj[:, li, nz] += both
+        if pb.gain >= 0:
+            both = np.einsum("mkr,kr->m", f, ones) / r_var
+            jtj[:, pb.gain, li] += both
+            jtj[:, li, pb.gain] += both
     idx = np.arange(pb.d)
     jtj[:, idx, idx] += pb.prior_w[i]
     jtr += pb.prior_w[i] * (z - pb.prior_mean[i])
@@ -360,6 +387,11 @@ class PathFitRun:
     from the same trace), a gain a fraction of a percent off reads as delay errors that the
     excursions then contradict, and the tracker takes knots that are none.
 
+    ``level_prior`` > 0: also fit o, an offset of every slot energy (prior std ``level_prior``
+    about 0): a detector's reading of no light a few 1e-4 of the full scale off reads, in the
+    empty slots of a stack, like delay errors (docs/rig.md, "The detector's offset, measured in
+    every record").
+
     ``prune``: (iterations, keep): after that many iterations only the ``keep`` starts of
     lowest cost iterate on, and the first (no knot: the one the others must beat). ``path0``:
     (M, K, N) the starts' paths (by default straight back from x_now by the drift).
@@ -390,14 +422,15 @@ class PathFitRun:
         path0=None,
         chunk=None,
         gain_prior: float = 0.0,
+        level_prior: float = 0.0,
     ):
         k, n = u.shape
         m = x_now.shape[0]
-        fixed = (u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior, gain_prior)
-        pb = path_problem(stacker, period_fs, *fixed)
+        fixed = (u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior)
+        pb = path_problem(stacker, period_fs, *fixed, gain_prior, level_prior)
         if path0 is None:  # the straight path back from x_now by the drift
             path0 = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
-        extra = np.zeros((m, (1 if ratio else 0) + (1 if pb.gain >= 0 else 0)))
+        extra = np.zeros((m, (1 if ratio else 0) + (pb.gain >= 0) + (pb.level >= 0)))
         change = np.zeros((m, 0)) if knots is None else np.asarray(knots[2], float)[:, None]
         self._pb, self._k, self._n, self._m, self._knots = pb, k, n, m, knots
         self._z = np.concatenate([path0.reshape(m, k * n), drift, extra, change], axis=1)
@@ -443,4 +476,5 @@ class PathFitRun:
             objective=self._objective.copy(),  # each fit's whole normalized cost
             ratio=fitted_ratio,
             gain=z[:, pb.gain].copy() if pb.gain >= 0 else np.zeros(m),
+            level=z[:, pb.level].copy() if pb.level >= 0 else np.zeros(m),
         )

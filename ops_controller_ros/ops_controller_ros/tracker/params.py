@@ -219,6 +219,29 @@ class TrackerParams:
         0.0,
         0.1,
     )
+    # ... and the same for the offset: a detector's reading of no light a few 1e-4 of the full
+    # scale off reads like light in every empty slot of the stack, which only delay errors make
+    # (simulated rig, offset calibrated 2e-4 or more high: 15 of 24 runs lost the lock;
+    # in process, +4e-4: 7 of 20 seeds; docs/rig.md, "The detector's offset, measured in every
+    # record").
+    lock_offset_walk: float = _declare(
+        0.0005,
+        "how far one tracking fit in the first window after a lock may move the detector's "
+        "offset where power_weight is 0 (normalized energies, std; 0: never)",
+        0.0,
+        0.1,
+    )
+    # The detector's line fitted again at a lock takes only the readings since the lock that
+    # read this much power or more where power_weight is 0: away from the stack a delay error
+    # moves the slot energies as much as the gain does (over DDS, refits on first locked
+    # readings of 0.90-0.91 gave gains 3-4 % off, of 0.96 within 1 %, of 0.98 and more 0.3 %).
+    lock_refit_power: float = _declare(
+        0.95,
+        "the least P_N/P_max of a reading the detector's line is fitted again on at a lock, "
+        "where power_weight is 0",
+        0.0,
+        1.0,
+    )
     misses: int = _declare(3, "bad fits in a row before recovering", 1)
     # Knots of the drift (a stage's slope changes): a tracking fit whose residual exceeds
     # knot_tolerance (or whose path jumps, knot_walk_sigmas) is tried again under one hypothesis
