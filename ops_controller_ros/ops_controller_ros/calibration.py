@@ -158,14 +158,13 @@ class ModelCalibration:
         self._normal = k * self._normal + jac @ jac.T
         self._rhs = k * self._rhs + jac @ r
 
-    def scale_gain(self, factor: float) -> None:
-        """The gain times ``factor`` (a tracking fit's, see the tracker's ``lock_gain_walk``)."""
-        self.gain *= factor
-
-    def shift_offset(self, level: float) -> None:
-        """The offset moved by ``level`` of the corrected readings (a tracking fit's, see the
-        tracker's ``lock_offset_walk``): in detector units that is ``level`` times the gain."""
-        self.offset += level * self.gain
+    def take_fitted_line(self, gain_step: float, level_step: float) -> None:
+        """A tracking fit's relative gain g and offset o of the corrected readings (the
+        tracker's ``lock_gain_walk`` and ``lock_offset_walk``): those read (1 + g) times the
+        prediction plus o, so the offset moves by o times the present gain, then the gain
+        takes the factor 1 + g."""
+        self.offset += level_step * self.gain
+        self.gain *= 1.0 + gain_step
 
     def _observe_detector(self, f: np.ndarray, y: np.ndarray) -> None:
         """The detector's line from one reading's predicted and detected energies (each reading

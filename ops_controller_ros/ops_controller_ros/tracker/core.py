@@ -766,8 +766,7 @@ class PhaseTracker(Acquisition, KnotTest, PeriodCalibration, LatencyWatch):
         self._fit_vars.append(cost)
         self._note_fit_noise(u, y)
         self.drift = self._bounded(drift)
-        self.calibration.shift_offset(self._level_step)
-        self.calibration.scale_gain(1.0 + self._gain_step)
+        self.calibration.take_fitted_line(self._gain_step, self._level_step)
         # Not wrapped to one period: the estimate follows the delays continuously, so set-point
         # plus estimate stays the physical delay error (near 0 at the lock) and the model's pulse
         # envelopes are evaluated where the pulses are. Wrapped, the set-points carried the

@@ -211,8 +211,7 @@ class KnotTest:
             return
         self._path, self._objective, self._ratio = retry.path[1], retry.objective[1], retry.ratio[1]
         self.estimate, self.drift = retry.x[1], self._bounded(retry.drift[1])
-        self.calibration.shift_offset(float(retry.level[1]))
-        self.calibration.scale_gain(1.0 + float(retry.gain[1]))
+        self.calibration.take_fitted_line(float(retry.gain[1]), float(retry.level[1]))
         self.knots += 1
         self._knot_tick = self._tick
 
@@ -270,15 +269,15 @@ class KnotTest:
         """The best of the present fit (x, drift, cost) and the knot test's ``fits`` (the first:
         no knot), a hypothesis only by ``knot_penalty``; its path and period error kept."""
         best, best_path, best_obj = (x, drift, cost), self._path, self._objective
-        best_ratio, best_gain, won = self._ratio, (self._gain_step, self._level_step), False
+        best_ratio, best_line, won = self._ratio, (self._gain_step, self._level_step), False
         penalty = self._knot_setting("knot_penalty")
         for i in range(fits.objective.size):
             if fits.objective[i] + (penalty if i else 0.0) < best_obj:
                 best = (fits.x[i], fits.drift[i], float(fits.data_cost[i]))
                 best_path, best_obj, won = fits.path[i], fits.objective[i], i > 0
-                best_ratio, best_gain = fits.ratio[i], (float(fits.gain[i]), float(fits.level[i]))
+                best_ratio, best_line = fits.ratio[i], (float(fits.gain[i]), float(fits.level[i]))
         self._path, self._objective, self._ratio = best_path, best_obj, best_ratio
-        self._gain_step, self._level_step = best_gain
+        self._gain_step, self._level_step = best_line
         self.knots += won
         if won:
             self._knot_tick = self._tick
