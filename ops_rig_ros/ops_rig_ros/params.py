@@ -33,8 +33,9 @@ PARAMS = [
     ParamSpec(
         "full_scale_window",
         250,
-        "readings whose median summed slot energy, above the calibrated full scale, raises it "
-        "(a stack shows no more light than its perfect stack; 0: keep the calibration's)",
+        "readings whose median summed slot energy (less the dark slots' floor), above the "
+        "calibrated full scale, raises it (a stack shows no more light than its perfect stack; "
+        "0: keep the calibration's)",
         low=0,
         high=100000,
         read_only=True,

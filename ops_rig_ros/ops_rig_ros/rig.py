@@ -11,7 +11,7 @@ from .drivers import ACTUATORS, TRACE_SOURCES, DelayActuator, TraceSource, drive
 from .full_scale import FullScaleFollower
 from .rig_config import RigConfig, RigConfigError
 from .safety import SafeDrive
-from .trace import estimate_power, extract_trace, summed_slots_volts
+from .trace import estimate_power, extract_trace, slot_readings_volts
 
 
 def _make(section: dict, key: str, builtin: dict, base: type):
@@ -67,8 +67,8 @@ class Rig:
         # The trace keeps the calibration's units: a controller that fits its gain (the
         # tracker) saw a step of the full scale as a phase error and lost the lock. The power
         # is computed with the full scale followed.
-        summed = summed_slots_volts(record, cal.slot_positions) / cal.detector_full_volts
-        self.full_scale.observe(summed)
+        readings = slot_readings_volts(record, cal.slot_positions) / cal.detector_full_volts
+        self.full_scale.observe(readings)
         return trace, estimate_power(trace / self.full_scale.gain, samples_per_slot)
 
     @property

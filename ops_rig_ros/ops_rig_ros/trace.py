@@ -79,16 +79,16 @@ def record_baseline(volts: np.ndarray, positions: np.ndarray) -> float:
     return float(np.mean(np.interp(between, np.arange(volts.size), volts)))
 
 
-def summed_slots_volts(volts: np.ndarray, positions: np.ndarray) -> float:
-    """The record's slot readings summed, each above the record's own baseline
+def slot_readings_volts(volts: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Each slot's reading (S,) at its centre, above the record's own baseline
     (:func:`record_baseline`). Measured in the same record, the baseline takes the offset's
-    error out of the sum (against the calibrated offset, an error of 1 mV, over the 31 slots of
-    N = 5, moved the sum by 31 mV)."""
+    error out (against the calibrated offset, an error of 1 mV, over the 31 slots of N = 5,
+    moved their sum by 31 mV)."""
     volts = np.asarray(volts, dtype=np.float64)
     centres = np.interp(positions, np.arange(volts.size), volts)
     if positions.size < 2:
-        return float(centres.sum())
-    return float(np.sum(centres - record_baseline(volts, positions)))
+        return centres
+    return centres - record_baseline(volts, positions)
 
 
 def slot_energies(trace: np.ndarray, samples_per_slot: int) -> np.ndarray:

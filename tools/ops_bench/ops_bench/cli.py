@@ -36,6 +36,7 @@ TOOLS: dict[str, Tool] = {
     "latency-check": Tool("latency_check", "a tracker told the wrong latency, in process"),
     "ray-cluster": Tool("ray_bench", "the benchmark's smoke profile on a two-node Ray cluster"),
     "rig-calibration": Tool("rig_calibration", "calibrate on the simulated lab, seed by seed"),
+    "rig-full-scale": Tool("rig_full_scale", "the rig's power against the lab's truth at a lock"),
     "rig-power": Tool("rig_power", "the tracker on a rig's power (from its trace), in process"),
     "rig-tracker": Tool("rig_tracker", "simulated lab + rig + tracker over DDS, a long run"),
     "tracker": Tool("tracker", "the tracker's goals: episodes per mode, mismatch, compute"),
