@@ -353,15 +353,18 @@ def test_told_of_an_8_bit_trace_it_holds_hard_mode():
     """Issue 30: an 8-bit trace took the untold tracker to 0.86. Told the digitizer, it weighs
     the readings by their rounding (ops_sim_ros.rig.reading_noise_std). Measured (seeds 3-5,
     mean of the last 50 of 150 readings): told 0.967-0.982, untold 0.775-0.895. Untold, the
-    tracking fits now find the rounding as noise (``fit_noisy_threshold``): seeds 3 and 5 read
-    0.992 and 0.972; with that switch off, as before."""
+    tracking fits now find the rounding as noise (``fit_noisy_threshold``), less surely than
+    told: on one CPU seeds 3 and 5 read 0.992 and 0.972, on another 0.986 and 0.948 (seeds 1-10
+    there: 0.911-0.996, mean 0.971; told 0.994 each, switch off 0.705-0.886); with that switch
+    off, as before. So the untold runs are asserted on their mean over three seeds."""
     told = [_digitized_run(seed, True).mean() for seed in (3, 5)]
     switch_off = TrackerParams(fit_noisy_threshold=0.0)
     blind = [_digitized_run(seed, False, switch_off).mean() for seed in (3, 5)]
     assert min(told) > 0.95, told
     assert np.mean(told) > np.mean(blind) + 0.03, (told, blind)
-    found = [_digitized_run(seed, False).mean() for seed in (3, 5)]
-    assert min(found) > 0.95, found
+    found = [_digitized_run(seed, False).mean() for seed in (3, 5, 7)]
+    assert np.mean(found) > 0.95, found
+    assert np.mean(found[:2]) > np.mean(blind) + 0.1, (found, blind)
 
 
 def test_told_the_actuators_lag_it_holds_hard_mode():

@@ -94,12 +94,13 @@ def test_a_lock_whose_detector_offset_is_off_holds():
     offset is off and that does not measure it in each record, docs/rig.md): every empty slot
     of the stack reads like leaking light. Fitted with the gain in the first window after the
     lock (``lock_offset_walk``), it costs nothing; left out, seed 2 held 87.6 % with 104 knots
-    (20 seeds of a scratch loop: 0.857 mean, 7 below 0.97, against 1.000 and none)."""
+    on one CPU, 96.8 % with 41 on another (20 seeds of a scratch loop: 0.857 mean, 7 below
+    0.97, against 1.000 and none)."""
     runs = [_held_with_a_gain_off(s, 1.016, 0.15, 300, p_gap=0.1, offset=4e-4) for s in (2, 5, 10)]
     assert all(held >= 0.99 for held, _, _ in runs), runs
     assert sum(knots for _, knots, _ in runs) <= 6, runs
     old = _held_with_a_gain_off(2, 1.016, 0.15, 300, p_gap=0.1, offset=4e-4, lock_offset_walk=0)
-    assert old[0] < 0.95 and old[1] > 20, old
+    assert old[0] < min(held for held, _, _ in runs) and old[1] > 20, (old, runs)
     # like the gain's, no part of the in-process tracker (its power pins the level)
     assert PhaseTracker(make_config(5, "hard", "test"), seed=1)._level_prior() == 0.0
 
