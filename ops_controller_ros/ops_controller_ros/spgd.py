@@ -25,7 +25,11 @@ or the last restart -- a plateau, not a slow climb -- the controller walks every
 set-point to a random offset within +- ``restart_range_fs`` / 2 (one optical cycle wide: every
 delay's landscape repeats with the optical period), in steps of ``restart_step_fs`` (below the
 actuator's largest step; readings on the way are not used), and SPGD starts again there. The best
-plateau seen is remembered: a restart leaves from it.
+plateau seen is remembered: a restart leaves from it. ``restart_below`` (0.6) sits above every
+side peak: none reaches 1/3 behind the polarizer or 1/2 with both ports (N = 2-6, gradient
+ascent from random starts). A plateau above it is the main peak, lagging hard mode's drift; with
+0.9 SPGD restarted such plateaus and threw the lock away (hard, N = 5: 0.357 -> 0.418 with 0.6,
+2,000 episodes; docs/results/spgd/index.md).
 
 The class is a state machine with no notion of time or transport: ``command()`` gives
 the set-points to apply next, ``observe(power)`` the reading they produced. The ROS node and the
@@ -67,7 +71,8 @@ class SpgdParams:
     normalized: bool = True  # divide the gradient by the power (False: the paper's)
     normalize_floor: float = 0.02  # ... by at least this power
     recovery: str = "restart"  # "restart": leave a side peak; "none": the paper's SPGD-PID
-    restart_below: float = 0.9  # restart when P_N/P_max is still below this ...
+    # restart when P_N/P_max is still below this (above every side peak: module docstring) ...
+    restart_below: float = 0.6
     restart_after: int = 10  # ... and flat over this many iterations since the (re)start ...
     restart_flat: float = 0.1  # ... within this fraction of its level (a plateau, not a climb)
     # ... a window longer by this many iterations per step of latency (a climb shows late)

@@ -33,7 +33,12 @@ _SPGD_FIELDS = {
         None,
         False,
     ),
-    "restart_below": ("restart while P_N/P_max is below this ...", 0.0, 1.0, False),
+    "restart_below": (
+        "restart while P_N/P_max is below this (above every side peak) ...",
+        0.0,
+        1.0,
+        False,
+    ),
     "restart_after": ("... and flat over this many iterations since the last", 1, 100000, False),
     "restart_flat": ("... within this fraction of its level", 0.0, 1.0, False),
     "restart_after_per_latency": (

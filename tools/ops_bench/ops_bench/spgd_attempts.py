@@ -35,7 +35,7 @@ from ops_sim_ros.threads import limit_blas_threads
 from ops_bench import study
 
 STAGE = 5
-REACH = 0.9  # SpgdParams.restart_below: what a restart gives up on
+REACH = 0.9  # an attempt that reaches this has found the main peak's basin
 
 
 class RestartRecorder:
