@@ -52,8 +52,9 @@ def start_sim(
     lockstep: bool = True,
     seed: int = 1,
     name: str = "sim",
+    env=None,
 ):
-    """Start ``ops_sim`` and wait until it runs."""
+    """Start ``ops_sim`` and wait until it runs (``env``: its whole environment, as Popen's)."""
     args = sim_command(
         f"stage:={stage}",
         f"mode:={mode}",
@@ -62,7 +63,7 @@ def start_sim(
     )
     if namespace:
         args += ["-r", f"__ns:={namespace}"]
-    proc = group.start(args, name=name)
+    proc = group.start(args, name=name, env=env)
     proc.wait_for(rf"stage={stage} mode={mode}", timeout=30)
     return proc
 
