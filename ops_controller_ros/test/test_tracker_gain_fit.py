@@ -55,13 +55,14 @@ def _fit(seed: int, gain: float, gain_prior: float):
 
 
 def test_a_gain_off_is_fitted_and_leaves_the_errors_right():
-    """The gain within 0.1 % of the 1.2 % it is off, the errors within 0.0025-0.007 cycles on
-    these windows (an exact detector with the gain fitted too: the same; with the gain held,
+    """The gain within 0.1 % of the 1.2 % it is off, the errors within 0.0025-0.0074 cycles on
+    these windows with OpenBLAS's Haswell kernels, 0.0025-0.0080 with its Sandybridge or
+    Prescott ones (an exact detector with the gain fitted too: the same; with the gain held,
     0.013-0.018)."""
     for seed in range(4):
         gain, error = _fit(seed, 1.012, gain_prior=0.01)
         assert abs(gain - 0.012) < 0.002, (seed, gain, error)
-        assert error < 0.008, (seed, gain, error)
+        assert error < 0.0095, (seed, gain, error)
 
 
 def test_without_the_gain_the_errors_take_it():
