@@ -52,6 +52,7 @@ TOOLS: dict[str, Tool] = {
     "two-hosts": Tool("two_hosts", "the closed loop with sim and SPGD on one host or two"),
     "spgd-baseline": Tool("spgd_baseline", "SPGD-PID's episodes: figure and parameter sweep"),
     "spgd-attempts": Tool("spgd_attempts", "SPGD-PID's climbs and restarts, attempt by attempt"),
+    "side-peaks": Tool("side_peaks", "the landscape's side peaks, by gradient ascent"),
     "setpoint-shift": Tool("setpoint_shift", "a learned policy started whole cycles away"),
     "figures": Tool("", "figures of the docs: ops-bench figures KIND, KIND one of"),
     "ship-model": Tool("ship_model", "ship a trained run as a model folder with its curve"),
