@@ -14,6 +14,7 @@ from ops_rig_ros.rig_config import load_rig_config
 from ops_rig_ros.simlab.main import Lab
 from ops_rig_ros.trace import slot_readings_volts
 from ops_sim_ros.physics import PulseStacker
+from ops_sim_ros.rig import digitize
 from rig_lab_helpers import write_rig_yaml
 
 
@@ -50,14 +51,6 @@ def _stacked(energy: float, slots: int = 31) -> np.ndarray:
     return energies
 
 
-def _digitized(energies: np.ndarray, rng, noise=0.002, bits=8, full_scale=1.25) -> np.ndarray:
-    """A scope's reading of slot energies: the detector's noise, then 2^bits codes over
-    [0, full_scale], the noise below the lowest code clipped (the simulator's digitizer)."""
-    step = full_scale / (2**bits - 1)
-    reads = energies + rng.normal(0.0, noise, energies.shape)
-    return np.clip(np.round(reads / step) * step, 0.0, full_scale)
-
-
 def test_dark_slots_lifted_by_a_clipping_digitizer_are_not_taken_for_light():
     """A lock on an 8-bit trace, the calibration's full scale 10 % low: every dark slot reads
     ~5e-4 high on average (the noise below code 0 is clipped), 1.5 % over 30 slots. The plain
@@ -70,7 +63,8 @@ def test_dark_slots_lifted_by_a_clipping_digitizer_are_not_taken_for_light():
     stack[15] = 1.0 - stack.sum() + stack[15]
     followers = [FullScaleFollower(250), FullScaleFollower(250, subtract_dark_floor=False)]
     for _ in range(3000):
-        reading = _digitized(truth * stack, rng)
+        # the simulator's digitizer: noise 0.002, 8 bits over [0, 1.25], clipped at code 0
+        reading = digitize(truth * stack, 0.002, 1, 8, 1.25, rng)
         for follower in followers:
             follower.observe(reading)
     with_floor, plain = (f.gain for f in followers)
