@@ -127,6 +127,38 @@ def test_no_simulator_times_out_quickly():
         env.close()
 
 
+def test_a_simulator_that_is_gone_is_waited_for_not_reconnected_to(procs):
+    """A silence with the simulator's endpoints unmatched (it stopped: a link that is down looks
+    the same once the lease has run out) is no reason to replace the participant: discovery finds
+    the simulator again by itself when it is back, where a new participant would have to start
+    its discovery afresh."""
+    sim = start_sim(procs, stage=3, mode="easy", namespace="/gone", name="gone")
+    env = RosOpsEnv(
+        stage=3,
+        mode="easy",
+        namespace="/gone",
+        timeout_s=4.0,
+        retry_after_s=0.5,
+        reconnect_after_s=1.0,
+    )
+    try:
+        env.reset()
+        env.step(np.zeros(3))
+        assert sim.stop() == 0  # SIGINT: its endpoints leave the graph at once
+        with pytest.raises(SimulatorTimeoutError):
+            env.step(np.zeros(3))
+        assert env.client.retries >= 4  # silent for 4 s, 4 times reconnect_after_s
+        assert env.client.reconnects == 0
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan")])
+def test_a_reconnect_interval_that_is_not_positive_is_refused(bad):
+    with pytest.raises(ValueError, match=r"reconnect_after_s must be > 0 or None"):
+        RosOpsEnv(stage=3, mode="easy", namespace="/never", reconnect_after_s=bad)
+
+
 def test_close_leaves_no_node_or_thread(sim3):
     import rclpy
 
@@ -257,6 +289,33 @@ def _signal_all(pids: list[int], sig) -> None:
             os.kill(pid, sig)
 
 
+def _step_while_stopped(env, sim, seconds: float, action: float) -> dict:
+    """One step of ``action`` (each set-point) sent with the simulator process stopped (SIGSTOP)
+    and resumed ``seconds`` later; returns the step's info. Only the simulator itself is stopped:
+    `ros2 run` may run it as a child (in a process group of its own), and the wrapper must not be
+    stopped."""
+    pids = _process_tree(sim.popen.pid)[1:] or [sim.popen.pid]
+    _signal_all(pids, signal.SIGSTOP)
+    resume = threading.Timer(seconds, _signal_all, args=(pids, signal.SIGCONT))
+    resume.start()
+    try:
+        return env.step(np.full(env.stage, action))[-1]
+    finally:
+        resume.join()
+        _signal_all(pids, signal.SIGCONT)  # resumed whatever happened to the timer
+
+
+def _assert_aligned(env, info, expected) -> None:
+    """The step answered its own command (set-points ``expected``), and ten more steps and a
+    new episode after it too: the protocol stayed aligned."""
+    np.testing.assert_allclose(info["setpoints_fs"], expected, atol=1e-4)
+    for k in range(1, 11):
+        _, _, _, _, info = env.step(np.full(env.stage, -1.0))
+        np.testing.assert_allclose(info["setpoints_fs"], expected - k * env.max_step_fs, atol=1e-4)
+    env.reset()
+    env.step(np.zeros(env.stage))
+
+
 def test_stalled_simulator_is_asked_again_and_the_step_succeeds(procs):
     """An answer that does not come within retry_after_s (here: the simulator is stopped for a
     second) makes the bridge send the same command again; the step returns its own answer and
@@ -266,27 +325,40 @@ def test_stalled_simulator_is_asked_again_and_the_step_succeeds(procs):
     try:
         _, info = env.reset()
         setpoints = info["setpoints_fs"]
-        # Stop the simulator process itself: `ros2 run` may run it as a child (in a process
-        # group of its own), and the wrapper must not be stopped.
-        pids = _process_tree(sim.popen.pid)[1:] or [sim.popen.pid]
-        _signal_all(pids, signal.SIGSTOP)
-        resume = threading.Timer(1.2, _signal_all, args=(pids, signal.SIGCONT))
-        resume.start()
-        try:
-            _, _, _, _, info = env.step(np.full(3, 0.5))
-        finally:
-            resume.join()
-            _signal_all(pids, signal.SIGCONT)  # resumed whatever happened to the timer
+        info = _step_while_stopped(env, sim, 1.2, 0.5)
         assert env.retries >= 1 and info["retries"] == env.retries
-        expected = setpoints + 0.5 * env.max_step_fs
-        np.testing.assert_allclose(info["setpoints_fs"], expected, atol=1e-4)
-        for k in range(1, 11):
-            _, _, _, _, info = env.step(np.full(3, -1.0))
-            np.testing.assert_allclose(
-                info["setpoints_fs"], expected - k * env.max_step_fs, atol=1e-4
-            )
-        env.reset()
-        env.step(np.zeros(3))
+        _assert_aligned(env, info, setpoints + 0.5 * env.max_step_fs)
+        assert env.client.reconnects == 0  # a second's silence is no reason to reconnect
+    finally:
+        env.close()
+
+
+def test_a_long_silence_replaces_the_participant_and_the_steps_carry_on(procs):
+    """A request unanswered for reconnect_after_s is sent again over a new DDS participant: the
+    simulator stopped for 4 s with reconnect_after_s 1.5, the client replaces its participant
+    while the simulator is stopped, and once it runs again the step gets its own answer over the
+    new one and the protocol stays aligned (issue 21's outage test failed twice in CI with the
+    simulator running again and no answer reaching the old participant)."""
+    sim = start_sim(procs, stage=3, mode="easy", namespace="/renew", name="renew")
+    env = RosOpsEnv(
+        stage=3,
+        mode="easy",
+        namespace="/renew",
+        timeout_s=30.0,
+        retry_after_s=0.5,
+        reconnect_after_s=1.5,
+    )
+    try:
+        _, info = env.reset()
+        setpoints = info["setpoints_fs"]
+        first_context = env.client.context
+        info = _step_while_stopped(env, sim, 4.0, 0.5)
+        reconnects = env.client.reconnects
+        assert reconnects >= 1
+        assert env.client.context is not None and env.client.context is not first_context
+        assert first_context.ok() is False  # the old participant was shut down, not leaked
+        _assert_aligned(env, info, setpoints + 0.5 * env.max_step_fs)
+        assert env.client.reconnects == reconnects  # answered steps replace nothing
     finally:
         env.close()
 

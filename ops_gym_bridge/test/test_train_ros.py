@@ -101,11 +101,11 @@ def test_training_waits_through_an_outage_and_carries_on(procs, tmp_path):
     """The simulator frozen (SIGSTOP) for longer than the bounded waits of old (5 s): training
     with the default --ros-timeout waits, says so, and finishes once the simulator is back.
 
-    Both processes speak UDP only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``): Fast DDS's
-    shared-memory ports, which it uses between processes of one host, are watched for a
-    listener that stops reading, and after a freeze they did not always carry messages again
-    (seen twice in many CI runs: the bridge re-sent for 100 s after SIGCONT, unanswered;
-    docs/interfaces.md, "A process frozen")."""
+    Twice in many CI runs (once over shared memory, once over UDP alone) the bridge re-sent for
+    100 s after SIGCONT and no answer came, the simulator running again: the bridge now replaces
+    its DDS participant after 30 s without an answer, the simulator's endpoints matched
+    (``reconnect_after_s``; docs/interfaces.md, "A process frozen"). Both processes speak UDP
+    only, as in the second of those runs."""
     env = {**os.environ, "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
     sim = start_sim(procs, stage=2, mode="easy", namespace="/outage", name="sim", env=env)
     out = tmp_path / "through_outage"
@@ -130,8 +130,8 @@ def test_training_waits_through_an_outage_and_carries_on(procs, tmp_path):
     try:
         code = proc.wait_exit(120)
     except AssertionError:
-        # Seen once in many CI runs (the bridge resent for 100 s, no answer came): say whether
-        # the simulator's processes were running again and what the simulator printed.
+        # Say whether the simulator's processes were running again and what both printed (the
+        # bridge's warnings name the messages received and the endpoints matched).
         states = {pid: process_state(pid) for pid in [sim.popen.pid, *descendants(sim.popen.pid)]}
         tails = log_tails([sim, proc])
         raise AssertionError(f"simulator process states {states}{tails}") from None

@@ -40,7 +40,8 @@ class RosOpsEnv(gym.Env):
     ``namespace`` (e.g. ``"/rig2"`` for a sim started with ``-r __ns:=/rig2``), ``domain_id``
     (None: ``ROS_DOMAIN_ID``), ``timeout_s`` (deadline of every wait; None: no deadline, the env
     waits through outages of any length and re-sends every ``retry_after_s``),
-    ``max_episode_steps``.
+    ``reconnect_after_s`` (a request unanswered this long, the simulator's endpoints matched all
+    the while, is sent again over a new DDS participant; None: never), ``max_episode_steps``.
 
     ``info``: ``power`` (P_N/P_max), ``setpoints_fs`` (set-points now applied, as echoed by the
     simulator), ``delays_fs`` (with the authors' observation set only: the applied delays of the
@@ -65,6 +66,7 @@ class RosOpsEnv(gym.Env):
         observation_options: dict[str, Any] | None = None,
         node_name: str | None = None,
         retry_after_s: float | None = 1.0,
+        reconnect_after_s: float | None = 30.0,
         **overrides: Any,
     ) -> None:
         super().__init__()
@@ -107,6 +109,7 @@ class RosOpsEnv(gym.Env):
             retry_after_s,
             node_name,
             with_actual=self.obs_spec.needs_applied_delays,  # the authors' set: the oracle topic
+            reconnect_after_s=reconnect_after_s,
         )
         self.timeout_s = self.client.timeout_s
         self.domain_id = self.client.domain_id

@@ -13,7 +13,15 @@ executor while it waits). With a finite ``timeout_s`` every wait has a deadline;
 :class:`SimulatorTimeoutError` says what was awaited. With ``timeout_s=None`` (training's
 default) a wait has no deadline: through lost messages and outages of any length the client
 re-sends its request every ``retry_after_s``, says every few seconds that it is still waiting, and
-carries on when the simulator answers again (issue 21).
+carries on when the simulator answers again (issue 21). A request left unanswered for
+``reconnect_after_s`` while the simulator's endpoints stayed matched makes the client close its
+DDS participant and open a new one, then send the request again (next time after twice as long,
+at most :data:`RECONNECT_LIMIT_S`): DDS's state for each link, which a process frozen and resumed
+(SIGSTOP, a debugger) may leave unable to carry messages, is built anew on both sides, while the
+simulator keeps its state (docs/interfaces.md, "A process frozen"). The default, 30 s, is longer
+than Fast DDS's participant lease (20 s), after which a link that is down (a cable, a frozen
+process) unmatches the endpoints: an outage of the network alone never replaces the participant,
+and discovery finds the simulator again as it would have.
 """
 
 from __future__ import annotations
@@ -35,6 +43,8 @@ ECHO_TOLERANCE_FS = MATCH_TOLERANCE_FS
 HOUSEKEEPING_LIMIT_S = 5.0
 #: How often a wait without deadline says that it still waits.
 STILL_WAITING_EVERY_S = 10.0
+#: Each further reconnection waits for twice the matched silence of the one before, up to this.
+RECONNECT_LIMIT_S = 120.0
 
 
 class BridgeError(RuntimeError):
@@ -62,7 +72,9 @@ class LockstepClient:
 
     ``stage`` and ``mode`` describe the simulator expected (the stage is checked, the mode only
     named in hints); ``timeout_s`` bounds every wait (None or ``inf``: no bound, for outages of any
-    length); a request unanswered for ``retry_after_s`` is sent again (``retries`` counts them).
+    length); a request unanswered for ``retry_after_s`` is sent again (``retries`` counts them);
+    one unanswered for ``reconnect_after_s`` with the simulator's endpoints matched all the while
+    (None: never) is sent again over a new DDS participant (``reconnects`` counts them).
     """
 
     def __init__(
@@ -75,6 +87,7 @@ class LockstepClient:
         retry_after_s: float | None = 1.0,
         node_name: str | None = None,
         with_actual: bool = False,
+        reconnect_after_s: float | None = 30.0,
     ) -> None:
         if timeout_s is None:
             timeout_s = math.inf
@@ -88,14 +101,23 @@ class LockstepClient:
         self.retry_after_s = (
             None if not retry_after_s else min(float(retry_after_s), self.timeout_s / 2)
         )
+        if reconnect_after_s is not None and not (reconnect_after_s > 0):
+            raise ValueError(
+                f"reconnect_after_s must be > 0 or None (never); got {reconnect_after_s}"
+            )
+        self.reconnect_after_s = None if reconnect_after_s is None else float(reconnect_after_s)
         self.retries = 0  # requests sent again so far
         self.outages = 0  # requests answered only after a resend
-        self._unanswered_since: float | None = None  # first resend of the current request
+        self.reconnects = 0  # DDS participants replaced while no answer came
+        self._unanswered_since: float | None = None  # when the current request first went out
+        self._matched_silent_since: float | None = None  # matched, unanswered: since when
+        self._reconnect_wait = math.inf  # the matched silence that replaces the participant
         self._late_possible = False  # an earlier wait timed out: old answers may still arrive
         self._timed_out = False  # a wait timed out since the last successful reset
         self._lockstep_checked = False
         # with_actual: also wait for the simulator-only ops/delays_actual (the authors' set).
         self._topics = _TOPICS + (("delays_actual",) if with_actual else ())
+        self._namespace, self._node_name = namespace, node_name
         self._start_ros(namespace, domain_id, node_name)
 
     @property
@@ -426,13 +448,8 @@ class LockstepClient:
 
         # Reliable but volatile topics: a message sent before the endpoints match is lost, so
         # wait until the command reaches a subscriber and every output has a publisher.
-        def connected() -> bool:
-            return self._pub.get_subscription_count() > 0 and all(
-                s.get_publisher_count() > 0 for s in self._subs
-            )
-
         if not self._spin_until(
-            connected, time.monotonic() + self.timeout_s, "the simulator's topics to connect"
+            self._connected, time.monotonic() + self.timeout_s, "the simulator's topics to connect"
         ):
             raise SimulatorTimeoutError(
                 f"the simulator's reset service answers but its topics did not connect within "
@@ -443,6 +460,23 @@ class LockstepClient:
             # A simulator publishes its initial state once when it starts: let that settle.
             self._drain(grace_s=0.1)
 
+    def _connected(self) -> bool:
+        """The command reaches a subscriber and every output has a publisher."""
+        return self._pub.get_subscription_count() > 0 and all(
+            s.get_publisher_count() > 0 for s in self._subs
+        )
+
+    def _links(self) -> str:
+        """What a wait has to go on: messages received per output since the last request, and
+        the endpoints matched (the command's subscribers, each output's publishers)."""
+        got = ", ".join(f"{t} {len(self._queues[t])}" for t in self._topics)
+        publishers = "/".join(str(s.get_publisher_count()) for s in self._subs)
+        subscribers = self._pub.get_subscription_count()
+        return (
+            f"received since the last send: {got}; the command reaches {subscribers} "
+            f"subscriber(s), the outputs have {publishers} publisher(s)"
+        )
+
     def _attempt_end(self, deadline: float) -> float:
         if self.retry_after_s is None:
             return deadline
@@ -451,14 +485,46 @@ class LockstepClient:
 
     def _retry(self) -> None:
         self.retries += 1
-        if self._unanswered_since is None:
-            self._unanswered_since = time.monotonic()
+        now = time.monotonic()
+        first = self._unanswered_since is None
+        if first:  # the first attempt went out retry_after_s ago
+            self._unanswered_since = now - (self.retry_after_s or 0.0)
+            self._matched_silent_since = None
+            self._reconnect_wait = self.reconnect_after_s or math.inf
         self._node.get_logger().warning(
             "no complete answer from the simulator yet: sending the request again "
-            f"({self.retries} resend(s) so far)",
+            f"({self.retries} resend(s) so far; {self._links()})",
             throttle_duration_sec=5.0,
         )
+        # A link that is down unmatches the endpoints within the lease: only a silence with the
+        # simulator's endpoints matched all along is one that a new participant may end.
+        if not self._connected():
+            self._matched_silent_since = None
+        elif self._matched_silent_since is None:
+            self._matched_silent_since = self._unanswered_since if first else now
+        elif now - self._matched_silent_since >= self._reconnect_wait:
+            self._reconnect(now)
         self._prepare(strict=False)  # waits until late answers stop, drops them
+
+    def _reconnect(self, now: float) -> None:
+        """Replace the DDS participant (context, node, endpoints) by a new one, and wait a
+        little for it to match the simulator's endpoints; the request is then sent again."""
+        away = now - self._unanswered_since
+        matched = now - self._matched_silent_since
+        doubled = min(2.0 * self._reconnect_wait, RECONNECT_LIMIT_S)
+        self._reconnect_wait = max(self._reconnect_wait, doubled)
+        self._node.get_logger().warning(
+            f"no answer from the simulator for {away:.0f} s, its endpoints matched for the last "
+            f"{matched:.0f} s: replacing this bridge's DDS participant by a new one (links left "
+            "unable to carry messages, e.g. by a process frozen and resumed, are built anew); "
+            f"next time after {self._reconnect_wait:.0f} s more"
+        )
+        self._shutdown_ros()
+        self._start_ros(self._namespace, self.domain_id, self._node_name)
+        self.reconnects += 1
+        self._matched_silent_since = None
+        limit = min(HOUSEKEEPING_LIMIT_S, max(self.retry_after_s or 0.0, 1.0))
+        self._spin_until(self._connected, time.monotonic() + limit)
 
     def command(self, command: np.ndarray, t0: float, what: str) -> tuple:
         """Publish ``command`` and collect its answer; a lost message means the same command is
@@ -486,6 +552,7 @@ class LockstepClient:
             return
         away = time.monotonic() - self._unanswered_since
         self._unanswered_since = None
+        self._matched_silent_since = None
         self.outages += 1
         if away >= 1.0:
             self._node.get_logger().info(
