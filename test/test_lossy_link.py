@@ -8,7 +8,9 @@ re-sends it keeps about two thirds on an idle machine and a third on a busy one)
 lock; after a 3 s outage it steps again within seconds, and nothing exits.
 The tracker holds hard mode through 20 % loss (issue 34: it fell to 0.05 and no test sent a
 lost packet). The heavy schedules (5 / 20 % loss for minutes, 30 s outages, load, three
-controllers) are in `ops-bench faults`. Needs root and `ip`; skipped with the reason otherwise.
+controllers) are in `ops-bench faults`. Links that stay dead while discovery goes on (the relay's
+stuck-links fault) are ended by the Gymnasium bridge replacing its DDS participant. Needs root
+and `ip`; skipped with the reason otherwise.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import numpy as np
 import pytest
 from ops_bench.hosts import NetnsUnavailable, RelayedHosts, netns_unavailable_reason
 from ops_bench.processes import (
+    PYTHON,
+    REPO,
     assert_no_traceback,
     executable,
     log_tails,
@@ -136,5 +140,64 @@ def test_the_tracker_holds_hard_mode_through_20_percent_loss(hosts, procs):
     assert held >= 0.6, (held, tracker.output[-3000:])
     hosts.set()
     for proc in (sim, tracker):
+        assert proc.popen.poll() is None
+        assert_no_traceback(proc.output)
+
+
+def _client_steps(proc) -> list[tuple[int, int]]:
+    """(steps, reconnects) of every progress line of test/bridge_stuck_client.py."""
+    found = re.findall(r"\[client\] step (\d+) \(reconnects (\d+)\)", proc.output)
+    return [(int(n), int(k)) for n, k in found]
+
+
+def _matched_silence(proc) -> int:
+    """The most resends the bridge has warned of with the simulator's endpoints all matched."""
+    found = re.findall(
+        r"\((\d+) resend\(s\) so far; received since the last send: [^;]*; the command reaches"
+        r" 1 subscriber\(s\), the outputs have 1/1/1/1 publisher\(s\)\)",
+        proc.output,
+    )
+    return max(map(int, found), default=0)
+
+
+def test_a_bridge_whose_links_stay_dead_replaces_its_participant(hosts, procs):
+    """The relay's stuck-links fault: the DDS user traffic of the links open at that moment is
+    dropped, discovery and new links pass (the signature of the outage test's CI failures: the
+    endpoints matched, nothing arriving). A bridge that never reconnects stays silent through it
+    (which shows the fault is real); with reconnect_after_s 3 it replaces its participant and
+    steps on over the new one, the fault still on."""
+    env = hosts.env()
+    hosts.set()
+    sim_args = sim_command("stage:=3", "mode:=easy", "seed:=3", "lockstep:=true")
+    sim = hosts.a.start(procs, [*sim_args, "-r", "__ns:=/stuck"], name="sim_stuck", env=env)
+    sim.wait_for("stage=3 mode=easy", timeout=60)
+    client_args = [PYTHON, REPO / "test" / "bridge_stuck_client.py", "--namespace", "/stuck"]
+
+    never = hosts.b.start(procs, [*client_args, "--reconnect-after", 0], name="never", env=env)
+    _wait(lambda: len(_client_steps(never)) >= 3, 90, "steps over the clean link", never, sim)
+    hosts.set(stuck=True)
+    hosts.relay.wait_for("STUCK", timeout=10)
+    before = _client_steps(never)[-1][0]
+    _wait(lambda: _matched_silence(never) >= 8, 30, "5 s of matched silence", never, sim)
+    assert _client_steps(never)[-1][0] <= before + 10  # what was in flight at most
+    assert "replacing this bridge's DDS participant" not in never.output
+    never.stop()
+    hosts.set()  # (the next client's links are new: they would pass either way)
+
+    renew = hosts.b.start(procs, [*client_args, "--reconnect-after", 3], name="renew", env=env)
+    _wait(lambda: len(_client_steps(renew)) >= 3, 90, "steps over the clean link", renew, sim)
+    hosts.set(stuck=True)
+    hosts.relay.wait_for("STUCK", timeout=10, count=2)
+    stuck_at = _client_steps(renew)[-1][0]
+    renew.wait_for("replacing this bridge's DDS participant", timeout=30)
+    _wait(
+        lambda: any(n >= stuck_at + 30 and k >= 1 for n, k in _client_steps(renew)),
+        30,
+        "steps over the new participant",
+        renew,
+        sim,
+    )
+    hosts.set()
+    for proc in (sim, renew):
         assert proc.popen.poll() is None
         assert_no_traceback(proc.output)

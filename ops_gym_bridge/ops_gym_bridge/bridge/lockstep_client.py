@@ -201,20 +201,9 @@ class LockstepClient:
             raise
 
     def _shutdown_ros(self) -> None:
-        import rclpy
-
-        executor = getattr(self, "_executor", None)
-        node = getattr(self, "_node", None)
-        if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
-            self._executor = None
-        if node is not None:
-            node.destroy_node()
-            self._node = None
-        context = getattr(self, "_context", None)
-        if context is not None:
-            rclpy.try_shutdown(context=context)
-            self._context = None
+        ros = [getattr(self, k, None) for k in ("_executor", "_node", "_context")]
+        self._executor = self._node = self._context = None
+        _close_ros(*ros)
 
     def _spin_until(self, ready, deadline: float, waiting_for: str | None = None) -> bool:
         """Process callbacks until ``ready()`` or the deadline; returns ready(). With
@@ -519,8 +508,14 @@ class LockstepClient:
             "unable to carry messages, e.g. by a process frozen and resumed, are built anew); "
             f"next time after {self._reconnect_wait:.0f} s more"
         )
-        self._shutdown_ros()
-        self._start_ros(self._namespace, self.domain_id, self._node_name)
+        # The new participant first, then the old one closed: the new one takes other ports
+        # (participant numbers) than the old, and the bridge is never without a participant.
+        old = (self._executor, self._node, self._context)
+        self._executor = self._node = self._context = None  # a failed start closes its own
+        try:
+            self._start_ros(self._namespace, self.domain_id, self._node_name)
+        finally:
+            _close_ros(*old)
         self.reconnects += 1
         self._matched_silent_since = None
         limit = min(HOUSEKEEPING_LIMIT_S, max(self.retry_after_s or 0.0, 1.0))
@@ -559,3 +554,15 @@ class LockstepClient:
                 f"the simulator answered again ({what}) after {away:.1f} s without an answer; "
                 "carrying on"
             )
+
+
+def _close_ros(executor, node, context) -> None:
+    """Shut down an executor, destroy its node and shut down its context (any may be None)."""
+    import rclpy
+
+    if executor is not None:
+        executor.shutdown(timeout_sec=1.0)
+    if node is not None:
+        node.destroy_node()
+    if context is not None:
+        rclpy.try_shutdown(context=context)

@@ -219,10 +219,14 @@ class RelayedHosts(TwoHosts):
             self.close()
             raise
 
-    def set(self, loss: float = 0.0, delay_ms: float = 0.0, down: bool = False) -> None:
-        """New link conditions (the relay picks them up within 0.1 s)."""
+    def set(
+        self, loss: float = 0.0, delay_ms: float = 0.0, down: bool = False, stuck: bool = False
+    ) -> None:
+        """New link conditions (the relay picks them up within 0.1 s; ``stuck``: the DDS links
+        open now stay dead, ops_bench.relay)."""
         tmp = self.control.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"loss": loss, "delay_ms": delay_ms, "down": down}))
+        conditions = {"loss": loss, "delay_ms": delay_ms, "down": down, "stuck": stuck}
+        tmp.write_text(json.dumps(conditions))
         tmp.replace(self.control)
 
     def close(self) -> None:

@@ -7,9 +7,17 @@ AF_PACKET sockets, so the hosts see one Ethernet segment (ARP, multicast discove
 and DDS between them is not changed in any other way.
 
 The conditions come from a JSON control file, re-read whenever it changes (``{"loss": 0.05,
-"delay_ms": 20, "down": false}``; loss per frame and per direction, a fixed one-way delay, and an
-outage that drops everything), so a test or a benchmark changes them while the link runs. Counts
-of forwarded and dropped frames are printed every ``--report-s`` seconds and on exit.
+"delay_ms": 20, "down": false, "stuck": false}``; loss per frame and per direction, a fixed
+one-way delay, an outage that drops everything, and stuck links), so a test or a benchmark
+changes them while the link runs. Counts of forwarded and dropped frames are printed every
+``--report-s`` seconds and on exit.
+
+Stuck links (``"stuck": true``) stand for DDS state that a frozen process left unable to carry
+messages: every flow of DDS user traffic (UDP to a port of the RTPS user-traffic mapping, keyed by
+addresses and ports both ways) that crossed the link before it turned on is dropped until it
+turns off, while discovery (the metatraffic ports) and flows new since then pass. The endpoints
+stay matched and nothing arrives; a participant opened anew gets new flows
+(docs/interfaces.md, "A process frozen").
 
 Usage: ip netns exec R python -m ops_bench.relay IFACE_A IFACE_B --control FILE [--seed 0]
 """
@@ -30,6 +38,9 @@ import time
 ETH_P_ALL = 0x0003
 PACKET_OUTGOING = 4  # a frame this host sent: not to be forwarded again
 MAX_FRAME = 65536
+#: The RTPS port mapping (DDSI-RTPS 9.6.1.1): PB + DG * domain + offset, user traffic at
+#: offset d2 = 1 (multicast) and d3 + PG * participant = 11, 13, 15, ... (unicast).
+RTPS_PORT_BASE, RTPS_DOMAIN_GAIN = 7400, 250
 
 
 class Conditions:
@@ -40,6 +51,7 @@ class Conditions:
         self.loss = 0.0
         self.delay_s = 0.0
         self.down = False
+        self.stuck = False
         self._stamp = None
         self.reload()
 
@@ -60,11 +72,43 @@ class Conditions:
         self.loss = min(max(float(data.get("loss", 0.0)), 0.0), 1.0)
         self.delay_s = max(float(data.get("delay_ms", 0.0)), 0.0) / 1000.0
         self.down = bool(data.get("down", False))
+        self.stuck = bool(data.get("stuck", False))
         print(
             f"[relay] loss {self.loss:.3f} delay {self.delay_s * 1000:.1f} ms "
-            f"{'DOWN' if self.down else 'up'}",
+            f"{'DOWN' if self.down else 'up'}{' STUCK' if self.stuck else ''}",
             flush=True,
         )
+
+
+def is_user_port(port: int) -> bool:
+    """Whether ``port`` carries DDS user traffic in the RTPS port mapping (any domain)."""
+    if port < RTPS_PORT_BASE:
+        return False
+    offset = (port - RTPS_PORT_BASE) % RTPS_DOMAIN_GAIN
+    return offset == 1 or (offset >= 11 and offset % 2 == 1)
+
+
+def udp_header_at(frame: bytes) -> int | None:
+    """Where the UDP header of an IPv4 / UDP frame starts (its 8 bytes all there), else None
+    (not IPv4 / UDP, or a later fragment: no UDP header in it)."""
+    if len(frame) < 34 or frame[12:14] != b"\x08\x00" or frame[23] != 17:
+        return None
+    if int.from_bytes(frame[20:22], "big") & 0x1FFF:
+        return None
+    at = 14 + (frame[14] & 0x0F) * 4
+    return at if len(frame) >= at + 8 else None
+
+
+def user_flow(frame: bytes) -> tuple | None:
+    """(source address, source port, destination address, destination port) of an IPv4 / UDP
+    frame to a DDS user-traffic port, else None."""
+    at = udp_header_at(frame)
+    if at is None:
+        return None
+    source, destination = (int.from_bytes(frame[k : k + 2], "big") for k in (at, at + 2))
+    if not is_user_port(destination):
+        return None
+    return (frame[26:30], source, frame[30:34], destination)
 
 
 def without_udp_checksum(frame: bytes) -> bytes:
@@ -72,14 +116,10 @@ def without_udp_checksum(frame: bytes) -> bytes:
 
     A veth hands a locally sent datagram over with its checksum left to the "hardware"
     (offload); forwarded as captured it would be dropped as corrupt on the other side."""
-    if len(frame) < 34 or frame[12:14] != b"\x08\x00" or frame[23] != 17:
-        return frame  # not IPv4 / UDP
-    if int.from_bytes(frame[20:22], "big") & 0x1FFF:
-        return frame  # a later fragment: no UDP header in it
-    at = 14 + (frame[14] & 0x0F) * 4 + 6
-    if len(frame) < at + 2:
+    at = udp_header_at(frame)
+    if at is None:
         return frame
-    return frame[:at] + b"\x00\x00" + frame[at + 2 :]
+    return frame[: at + 6] + b"\x00\x00" + frame[at + 8 :]
 
 
 def open_port(name: str) -> socket.socket:
@@ -96,7 +136,9 @@ def run(ports: list[str], control: str, seed: int, report_s: float) -> dict:
     socks = [open_port(p) for p in ports]
     peer = {socks[0].fileno(): socks[1], socks[1].fileno(): socks[0]}
     queue: list[tuple[float, int, socket.socket, bytes]] = []  # (due, n, out, frame)
-    counts = {"forwarded": 0, "dropped": 0}
+    counts = {"forwarded": 0, "dropped": 0, "stuck": 0}
+    flows: set = set()  # DDS user-traffic flows seen so far
+    blocked: set = set()  # ... those that crossed before the links stuck (while they are)
     n = 0
     stop = []
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -106,6 +148,10 @@ def run(ports: list[str], control: str, seed: int, report_s: float) -> dict:
         now = time.monotonic()
         if now >= next_look:
             cond.reload()
+            if not cond.stuck:
+                blocked = set()
+            elif not blocked:
+                blocked = set(flows)
             next_look = now + 0.1
         if now >= next_report:
             print(f"[relay] {counts}", flush=True)
@@ -126,6 +172,12 @@ def run(ports: list[str], control: str, seed: int, report_s: float) -> dict:
                 if cond.down or (cond.loss and rng.random() < cond.loss):
                     counts["dropped"] += 1
                     continue
+                flow = user_flow(frame)
+                if flow is not None:
+                    if flow in blocked:
+                        counts["stuck"] += 1
+                        continue
+                    flows.add(flow)
                 n += 1
                 due = time.monotonic() + cond.delay_s
                 out = peer[sock.fileno()]
@@ -145,7 +197,7 @@ def run(ports: list[str], control: str, seed: int, report_s: float) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("ports", nargs=2, metavar="IFACE", help="the two interfaces to join")
-    parser.add_argument("--control", required=True, help="JSON file of loss, delay_ms, down")
+    parser.add_argument("--control", required=True, help="JSON file of loss, delay_ms, down, stuck")
     parser.add_argument("--seed", type=int, default=0, help="seed of the loss draws")
     parser.add_argument("--report-s", type=float, default=10.0, help="period of the counts line")
     args = parser.parse_args(argv)
