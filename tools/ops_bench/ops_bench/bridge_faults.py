@@ -6,7 +6,12 @@ ops_bench.relay (ops_bench.hosts.RelayedHosts; this kernel has no netem). Phases
 
 - clean link, then ``--loss`` of the frames lost each way;
 - an outage of ``--outage-s`` seconds (the link drops everything), then a clean link: the time
-  from the link's return to the next step counted (``back after``).
+  from the link's return to the next step counted (``back after``);
+- stuck links (the relay's ``"stuck"``: the DDS links open then stay dead, discovery goes on),
+  left on until the run logs that the simulator answered again: the time that took, which only
+  the bridge's replacing its DDS participant ends (``reconnect_after_s``, 30 s by default;
+  docs/interfaces.md, "A process frozen"). The progress bar cannot tell: it is drawn late, and
+  a count drawn during the fault may be one reached before it.
 
 Prints steps/s per phase, the outage's recovery and whether training finished with exit 0, and
 rewrites the "Training through faults" section of docs/benchmarks.md. Needs root and `ip`.
@@ -26,6 +31,8 @@ import time
 from pathlib import Path
 
 SECTION = "## Training through faults"
+ANSWERED = "the simulator answered again"  # the bridge's log line after an outage
+REPLACED = "replacing this bridge's DDS participant"
 
 
 def steps_done(proc, total: int) -> int:
@@ -44,6 +51,25 @@ def wait_steps(proc, total: int, target: int, timeout: float) -> float:
             raise RuntimeError(f"no {target} steps within {timeout:g} s:\n{proc.output[-3000:]}")
         time.sleep(0.05)
     return time.monotonic() - t0
+
+
+def stuck_links(hosts, proc, timeout: float = 600.0) -> dict:
+    """The relay's stuck links, on until the run logs an answer again: how long that took and
+    how many times the bridge replaced its participant meanwhile."""
+    answered = proc.output.count(ANSWERED)
+    replaced = proc.output.count(REPLACED)
+    hosts.set(stuck=True)
+    hosts.relay.wait_for("STUCK", timeout=10)
+    t0 = time.monotonic()
+    try:
+        while proc.output.count(ANSWERED) <= answered:
+            if proc.popen.poll() is not None or time.monotonic() - t0 > timeout:
+                raise RuntimeError(f"no answer through stuck links:\n{proc.output[-3000:]}")
+            time.sleep(0.05)
+    finally:
+        hosts.set()
+    took = time.monotonic() - t0
+    return {"answered_after_s": took, "replacements": proc.output.count(REPLACED) - replaced}
 
 
 def run(args, tmp: Path) -> dict:
@@ -84,8 +110,11 @@ def run(args, tmp: Path) -> dict:
             back = wait_steps(proc, total, seen + 1, 600)
             rows[f"outage {args.outage_s:g} s"] = {"back_s": back}
             print(f"[bench] outage: back after {back:.2f} s", flush=True)
+            wait_steps(proc, total, steps_done(proc, total) + 50, 600)  # flowing again
+            rows["stuck links"] = stuck_links(hosts, proc)
+            print(f"[bench] stuck links: {rows['stuck links']}", flush=True)
             code = proc.wait_exit(1800)
-            rows["finished"] = {"exit": code, "answered_again": "answered again" in proc.output}
+            rows["finished"] = {"exit": code, "answered_again": ANSWERED in proc.output}
             print(f"[bench] train exited {code}", flush=True)
         finally:
             group.stop_all()
@@ -116,6 +145,11 @@ def main(argv=None) -> int:
             lines.append(f"| {label} | {row['steps_per_s']:.1f} training steps/s |")
         elif "back_s" in row:
             lines.append(f"| {label} | next step {row['back_s']:.2f} s after the link returned |")
+        elif "answered_after_s" in row:
+            lines.append(
+                f"| {label} | answered again {row['answered_after_s']:.1f} s after they stuck, "
+                f"the fault still on ({row['replacements']} DDS participant(s) replaced) |"
+            )
     done = rows.get("finished", {})
     cmd = "ops-bench bridge-faults " + " ".join(sys.argv[1:])
     section = (
