@@ -10,7 +10,7 @@ import time
 import gymnasium as gym
 import numpy as np
 import pytest
-from ops_bench.processes import start_sim
+from ops_bench.processes import descendants, start_sim
 from ops_gym_bridge.bridge.bridge_env import (
     LockstepError,
     RosOpsEnv,
@@ -268,16 +268,6 @@ def test_unsolicited_outputs_are_detected(sim3, observer_bridge):
         env.close()
 
 
-def _process_tree(pid: int) -> list[int]:
-    import subprocess
-
-    out = [pid]
-    children = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout
-    for child in children.split():
-        out += _process_tree(int(child))
-    return out
-
-
 def _signal_all(pids: list[int], sig) -> None:
     """Signal every process that still exists: one that exited in between (a short-lived child
     of `ros2 run`) must not keep the others from being signalled, above all from SIGCONT (a
@@ -294,7 +284,7 @@ def _step_while_stopped(env, sim, seconds: float, action: float) -> dict:
     and resumed ``seconds`` later; returns the step's info. Only the simulator itself is stopped:
     `ros2 run` may run it as a child (in a process group of its own), and the wrapper must not be
     stopped."""
-    pids = _process_tree(sim.popen.pid)[1:] or [sim.popen.pid]
+    pids = descendants(sim.popen.pid) or [sim.popen.pid]
     _signal_all(pids, signal.SIGSTOP)
     resume = threading.Timer(seconds, _signal_all, args=(pids, signal.SIGCONT))
     resume.start()

@@ -27,7 +27,9 @@ class Tool(NamedTuple):
 TOOLS: dict[str, Tool] = {
     "physics": Tool("physics", "simulator and environment speed (batched physics, OpsEnv steps)"),
     "bridge": Tool("bridge", "Gymnasium bridge over DDS against the in-process environment"),
-    "bridge-faults": Tool("bridge_faults", "training over the bridge on a lossy, cut link"),
+    "bridge-faults": Tool(
+        "bridge_faults", "training over the bridge on a lossy, cut or stuck link"
+    ),
     "closed-loop": Tool("closed_loop", "sim + SPGD over DDS: loop rate, latency, raw round trip"),
     "continuous-dds": Tool("continuous_dds", "a controller node's continuous run over DDS"),
     "continuous-table": Tool("continuous_table", "continuous-dds' table beside the in-process one"),
