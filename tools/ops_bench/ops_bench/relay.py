@@ -138,7 +138,7 @@ def run(ports: list[str], control: str, seed: int, report_s: float) -> dict:
     queue: list[tuple[float, int, socket.socket, bytes]] = []  # (due, n, out, frame)
     counts = {"forwarded": 0, "dropped": 0, "stuck": 0}
     flows: set = set()  # DDS user-traffic flows seen so far
-    blocked: set = set()  # ... those that crossed before the links stuck (while they are)
+    blocked: set | None = None  # ... those that crossed before the links stuck (while they are)
     n = 0
     stop = []
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -149,8 +149,8 @@ def run(ports: list[str], control: str, seed: int, report_s: float) -> dict:
         if now >= next_look:
             cond.reload()
             if not cond.stuck:
-                blocked = set()
-            elif not blocked:
+                blocked = None
+            elif blocked is None:  # just stuck: the flows seen so far, and no later ones
                 blocked = set(flows)
             next_look = now + 0.1
         if now >= next_report:
@@ -174,7 +174,7 @@ def run(ports: list[str], control: str, seed: int, report_s: float) -> dict:
                     continue
                 flow = user_flow(frame)
                 if flow is not None:
-                    if flow in blocked:
+                    if blocked is not None and flow in blocked:
                         counts["stuck"] += 1
                         continue
                     flows.add(flow)
