@@ -12,7 +12,7 @@ cd "$ROOT"
 VENV="$ROOT/.venv"
 LOG_DIR="$ROOT/.setup-logs"
 ROS_DISTRO_DIR="${OPS_ROS_DIR:-/opt/ros/jazzy}"
-PACKAGES=(ops_sim_ros ops_controller_ros ops_gym_bridge ops_rig_ros)
+PACKAGES=(ops_contract ops_sim_ros ops_controller_ros ops_gym_bridge ops_experiments ops_rig_ros)
 mkdir -p "$LOG_DIR"
 
 say() { printf '[setup] %s\n' "$*"; }
@@ -68,7 +68,7 @@ touch "$VENV/COLCON_IGNORE"
 REQS=(requirements/python.txt requirements/dev.txt)
 [ "$USE_SYSTEM_ROS" = 1 ] || REQS=(requirements/ros-wheels.txt "${REQS[@]}")
 deps_stamp="$VENV/.ops-deps-stamp"
-deps_hash="$(cat "${REQS[@]}" tools/ros2cli/pyproject.toml tools/ops_bag/pyproject.toml tools/ops_bench/pyproject.toml 2>/dev/null | sha256sum | cut -c1-16)-$USE_SYSTEM_ROS"
+deps_hash="$(cat "${REQS[@]}" tools/ros2cli/pyproject.toml ops_bag/pyproject.toml tools/ops_bench/pyproject.toml 2>/dev/null | sha256sum | cut -c1-16)-$USE_SYSTEM_ROS"
 if [ "$(cat "$deps_stamp" 2>/dev/null)" != "$deps_hash" ]; then
   req_args=()
   for r in "${REQS[@]}"; do req_args+=(-r "$r"); done
@@ -76,8 +76,8 @@ if [ "$(cat "$deps_stamp" 2>/dev/null)" != "$deps_hash" ]; then
   run_logged "installing Python dependencies" "$LOG_DIR/pip.log" \
     "$VPY" -m pip install --disable-pip-version-check "${req_args[@]}"
   # The rosbag2/MCAP library of `ros2 bag`, evaluate --record and the Foxglove view (both modes).
-  run_logged "installing tools/ops_bag" "$LOG_DIR/ops_bag.log" \
-    "$VPY" -m pip install --disable-pip-version-check --no-deps -e tools/ops_bag
+  run_logged "installing ops_bag" "$LOG_DIR/ops_bag.log" \
+    "$VPY" -m pip install --disable-pip-version-check --no-deps -e ops_bag
   # `ops-bench`: the benchmarks, figure and model tools, and the helpers the tests import.
   run_logged "installing tools/ops_bench" "$LOG_DIR/ops_bench.log" \
     "$VPY" -m pip install --disable-pip-version-check --no-deps -e tools/ops_bench

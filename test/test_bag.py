@@ -158,12 +158,13 @@ def test_play_reproduces_the_messages_in_order(recorded, procs):
 def test_play_keeps_latched_topics_latched(tmp_path, procs):
     """A subscriber that joins after the one /ops/delays message was played still gets it."""
     import rclpy
-    from ops_bag import BagWriter
-    from ops_bag import qos as qos_io
-    from ops_sim_ros.ros_interface import QOS_RELIABLE, QOS_STATE
+    from ops_contract.ros_interface import QOS_RELIABLE, QOS_STATE
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Float32, Float32MultiArray
+
+    from ops_bag import BagWriter
+    from ops_bag import qos as qos_io
 
     bag = tmp_path / "latched"
     with BagWriter(bag) as w:

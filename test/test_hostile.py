@@ -20,8 +20,8 @@ from ops_bench.processes import REPO, ros2_command
 
 rclpy = pytest.importorskip("rclpy")
 
-from ops_sim_ros.node_params import check_value  # noqa: E402
-from ops_sim_ros.ros_interface import QOS_RELIABLE, QOS_STATE  # noqa: E402
+from ops_contract.node_params import check_value  # noqa: E402
+from ops_contract.ros_interface import QOS_RELIABLE, QOS_STATE  # noqa: E402
 
 from ops_controller_ros import loop_node, policy_node, spgd_node, tracker_node  # noqa: E402
 from ops_sim_ros import foxglove_node, monitor_node, sim_node  # noqa: E402

@@ -70,7 +70,8 @@ def hosts():
 def bench_cmd(cluster, out) -> list[str]:
     # From a folder of its own: Ray puts the driver's folder on the workers' path.
     return [
-        "env", "-C", str(Path(out).parent), sys.executable, "-m", "ops_gym_bridge.table1.benchmark",
+        "env", "-C", str(Path(out).parent), sys.executable,
+        "-m", "ops_experiments.table1.benchmark",
         "--profile", "smoke", "--out", str(out),
         "--ray-address", cluster.address, "--retry-delay", "1", "--status-every", "10", *SUBSET,
     ]  # fmt: skip

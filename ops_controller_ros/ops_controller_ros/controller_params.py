@@ -1,6 +1,6 @@
 """Parameters every controller node declares, with one meaning across them."""
 
-from ops_sim_ros.node_params import ParamSpec
+from ops_contract.node_params import ParamSpec
 
 TIMEOUT = ParamSpec(
     "timeout_s",

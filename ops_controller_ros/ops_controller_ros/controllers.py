@@ -23,8 +23,9 @@ periods (the same interference), with the state built on them following; the loo
 to keep the set-points inside a rig's range (:mod:`ops_controller_ros.setpoint_range`). SPGD and
 the policy runner have it; the tracker keeps the range itself.
 
-A controller is built from the *nominal* model of the rig (an :class:`~ops_sim_ros.config.OpsConfig`
-holding the wavelength, pulse width, detector, ...), never from the simulator's true state.
+A controller is built from the *nominal* model of the rig (an
+:class:`~ops_contract.config.OpsConfig` holding the wavelength, pulse width, detector, ...), never
+from the simulator's true state.
 """
 
 from __future__ import annotations

@@ -31,11 +31,11 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from ops_sim_ros.config import SPEED_OF_LIGHT_NM_PER_FS
-from ops_sim_ros.node_params import ParamSpec, declare_all
-from ops_sim_ros.observation import pulse_energies_from_trace
-from ops_sim_ros.rig_params import RIG_PARAMS, rig_config, rig_values
-from ops_sim_ros.ros_interface import (
+from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
+from ops_contract.node_params import ParamSpec, declare_all
+from ops_contract.observation import pulse_energies_from_trace
+from ops_contract.rig_params import RIG_PARAMS, rig_config, rig_values
+from ops_contract.ros_interface import (
     QOS_READINGS,
     QOS_RELIABLE,
     QOS_STATE,

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from ops_sim_ros.node_params import ParamSpec
+from ops_contract.node_params import ParamSpec
 
 LOCKED, SEARCHING, STARVED = "locked", "searching", "starved"
 STATES = (LOCKED, SEARCHING, STARVED)
@@ -107,7 +107,7 @@ class StatusReporter:
     """A node's :class:`LoopStatus` on ``ops/controller/status`` (latched) and in its log."""
 
     def __init__(self, node, values: dict):
-        from ops_sim_ros.ros_interface import QOS_STATE
+        from ops_contract.ros_interface import QOS_STATE
         from std_msgs.msg import String
 
         self._node = node

@@ -24,7 +24,7 @@ rig the runner is told of (``--realism`` / ``--rig``, the node's ``realism`` /
 no rclpy, no torch.
 
 A model trained with held decisions (``train --hold-steps``: the environments' side of the same
-hold, :mod:`ops_sim_ros.held`, which declares the values) records its ``hold_steps`` in its
+hold, :mod:`ops_contract.held`, which declares the values) records its ``hold_steps`` in its
 metadata (0 for auto); ``evaluate`` and the policy node hold it so by default
 (:func:`model_hold_steps`; an explicit value overrides, and a model without the entry decides on
 every reading).
@@ -33,7 +33,7 @@ every reading).
 from __future__ import annotations
 
 import numpy as np
-from ops_sim_ros.held import (  # noqa: F401  (declared once, with the env side of the hold)
+from ops_contract.held import (  # noqa: F401  (declared once, with the env side of the hold)
     HOLD_STEPS,
     HOLD_STEPS_AUTO,
     HOLD_STEPS_DEFAULT,

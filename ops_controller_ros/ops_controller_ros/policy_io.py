@@ -15,7 +15,7 @@ Metadata (``metadata.json``, ``format_version`` 1)::
     stage, mode, split   the environment it was trained on
     action_type       "increment": actions in [-1, 1]^N times max_step_fs added to the set-points
     max_step_fs       the actuator's largest set-point change per step (fs)
-    observation_spec  ObservationSpec.to_dict() of ops_sim_ros.observation (``history``: the
+    observation_spec  ObservationSpec.to_dict() of ops_contract.observation (``history``: the
                       number of past observations and actions in each observation; 0 or absent:
                       none, the paper's observation; ``observation``: the observation set,
                       "rig" or "authors"; absent: "rig")
@@ -210,7 +210,7 @@ def validate_metadata(data: Any, source: str = "metadata") -> None:
             f"(this reader knows {FORMAT_VERSION})"
         )
     if "hold_steps" in data:
-        from ops_sim_ros.held import check_hold_steps
+        from ops_contract.held import check_hold_steps
 
         try:
             check_hold_steps(data["hold_steps"])
@@ -337,8 +337,8 @@ def load_policy(path: str | os.PathLike, device: str = "cpu") -> LoadedPolicy:
 
 
 def observation_spec_of(metadata: dict, source: str = "metadata"):
-    """The :class:`~ops_sim_ros.observation.ObservationSpec` a model was trained with."""
-    from ops_sim_ros.observation import ObservationSpec
+    """The :class:`~ops_contract.observation.ObservationSpec` a model was trained with."""
+    from ops_contract.observation import ObservationSpec
 
     try:
         return ObservationSpec.from_dict(dict(metadata["observation_spec"]))
@@ -375,14 +375,14 @@ class PolicyRunner:
     set-points in fs) in, one normalized action in [-1, 1]^N out.
 
     Builds the observations with the model's own spec through the same
-    :class:`~ops_sim_ros.observation.ObservationBuilder` as the environments, so a model trained
+    :class:`~ops_contract.observation.ObservationBuilder` as the environments, so a model trained
     with memory (``history`` > 0) gets its last observations and actions: the first reading
     (and the first after :meth:`restart`) starts the history, every later one is pushed with the
     action returned for the reading before. The ``ops_policy`` node runs one.
     """
 
     def __init__(self, loaded: LoadedPolicy, num_envs: int | None = None) -> None:
-        from ops_sim_ros.observation import ObservationBuilder
+        from ops_contract.observation import ObservationBuilder
 
         self.policy = loaded
         # (an authors'-set model: its applied delays re-centred by whole periods)

@@ -2,7 +2,7 @@
 
 ``ros2 run ops_controller_ros policy --ros-args -p model:=DIR`` loads ``DIR/model.zip`` and the
 metadata saved beside it by training, builds each observation with the same builder as the
-in-process environment (``ops_sim_ros.observation.ObservationBuilder``, through
+in-process environment (``ops_contract.observation.ObservationBuilder``, through
 ``policy_io.PolicyRunner``; a model trained with memory gets its last observations and actions,
 the history starting at the node's first reading) from the simulator's trace, power and
 set-points, and publishes new set-points: the reading's set-points + action * max step (the only
@@ -29,10 +29,10 @@ the model was trained on.
 from __future__ import annotations
 
 import numpy as np
-from ops_sim_ros.node_params import ParamSpec
-from ops_sim_ros.observation import OBSERVATION_SETS
-from ops_sim_ros.rig_params import RIG_PARAM_KEYS
-from ops_sim_ros.ros_interface import NodeFatalError, ParameterError, run_node
+from ops_contract.node_params import ParamSpec
+from ops_contract.observation import OBSERVATION_SETS
+from ops_contract.rig_params import RIG_PARAM_KEYS
+from ops_contract.ros_interface import NodeFatalError, ParameterError, run_node
 
 from .loop_node import ControllerLoopNode
 from .policy_hold import (

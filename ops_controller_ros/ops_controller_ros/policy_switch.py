@@ -276,7 +276,7 @@ def write_switch_model(
     save_metadata(target, read_metadata(acquire.path))
     metadata = read_metadata(hold.path)
     if mode is not None:
-        from ops_sim_ros.config import MODES
+        from ops_contract.config import MODES
 
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)} (got {mode!r})")

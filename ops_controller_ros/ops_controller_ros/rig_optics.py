@@ -7,7 +7,7 @@ optics from it.
 
 The rig YAML that ``ops_rig_ros calibrate`` wrote tells the stacker's stage and nominal optics
 (``optics.wavelength_nm``, ``optics.pulse_fwhm_fs``, ``optics.detector``), read here with the
-rig package's own checks (:mod:`ops_sim_ros.rig_file`, shared: this package does not depend on
+rig package's own checks (:mod:`ops_contract.rig_file`, shared: this package does not depend on
 ``ops_rig_ros``). A parameter given explicitly (command line, launch file, parameter file)
 overrides the file; the file overrides the parameters' defaults.
 
@@ -20,9 +20,9 @@ than one reading leaves readings half-way, far below the stack (simulated lab, N
 
 from __future__ import annotations
 
-from ops_sim_ros.config import SPEED_OF_LIGHT_NM_PER_FS
-from ops_sim_ros.rig_file import RigFileError, RigModel, read_rig_model
-from ops_sim_ros.ros_interface import ParameterError
+from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
+from ops_contract.rig_file import RigFileError, RigModel, read_rig_model
+from ops_contract.ros_interface import ParameterError
 from rclpy.node import Node
 
 

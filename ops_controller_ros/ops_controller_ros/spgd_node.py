@@ -8,8 +8,8 @@ rig's figures, as the simulator node takes them: the latency is what SPGD uses).
 
 from __future__ import annotations
 
-from ops_sim_ros.node_params import ParamSpec
-from ops_sim_ros.ros_interface import ParameterError, run_node
+from ops_contract.node_params import ParamSpec
+from ops_contract.ros_interface import ParameterError, run_node
 
 from .loop_node import ControllerLoopNode
 from .spgd import RECOVERIES, SpgdParams, SpgdPid

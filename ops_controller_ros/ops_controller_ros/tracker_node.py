@@ -4,7 +4,7 @@
 
 The model parameters (wavelength, pulse width, detector) are node parameters with the simulator's
 defaults, or a rig YAML's ``optics.*`` (``rig_config``, :mod:`.rig_optics`), and the rig
-(``realism`` and its figures, ``ops_sim_ros.rig_params``) as the simulator node takes it: the
+(``realism`` and its figures, ``ops_contract.rig_params``) as the simulator node takes it: the
 controller is told the nominal rig, never the simulator's state; the stage and the trace's
 samples per slot come from the messages. The tracker's own parameters are
 :class:`~ops_controller_ros.tracker.TrackerParams`' declared node fields, with its defaults
@@ -14,10 +14,10 @@ samples per slot come from the messages. The tracker's own parameters are
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from ops_sim_ros.config import DETECTORS
-from ops_sim_ros.node_params import ParamSpec
-from ops_sim_ros.rig_file import OPTICS_DEFAULTS, OPTICS_LIMITS
-from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DIAGNOSTICS, ParameterError, run_node
+from ops_contract.config import DETECTORS
+from ops_contract.node_params import ParamSpec
+from ops_contract.rig_file import OPTICS_DEFAULTS, OPTICS_LIMITS
+from ops_contract.ros_interface import QOS_RELIABLE, TOPIC_DIAGNOSTICS, ParameterError, run_node
 from std_msgs.msg import Float32MultiArray
 
 from .loop_node import ControllerLoopNode
@@ -49,7 +49,7 @@ MODEL_PARAMS = [
 ]
 # The tracker's own parameters are generated from TrackerParams' declarations (one default set
 # with evaluate; the node adds only real-time caps, docs/tracker.md); the rig's are every
-# controller node's (ControllerLoopNode, ops_sim_ros.rig_params), and so is rig_config.
+# controller node's (ControllerLoopNode, ops_contract.rig_params), and so is rig_config.
 PARAMS = [*MODEL_PARAMS, *node_param_specs()]
 
 

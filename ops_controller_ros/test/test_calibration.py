@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from ops_contract.config import make_config
 from ops_controller_ros.calibration import ModelCalibration
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
-from ops_sim_ros.config import make_config
 from ops_sim_ros.env import OpsEnv
 
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from ops_bench.latency_check import run
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
 from ops_controller_ros.tracker.latency_check import pair_readings
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 

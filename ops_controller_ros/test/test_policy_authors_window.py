@@ -10,6 +10,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from ops_contract.observation import ObservationSpec, build_frame
 from ops_controller_ros.policy_io import (
     AUTHORS_RUN_WINDOW_CYCLES,
     LoadedPolicy,
@@ -18,7 +19,6 @@ from ops_controller_ros.policy_io import (
     read_metadata,
     run_observation_spec,
 )
-from ops_sim_ros.observation import ObservationSpec, build_frame
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 AUTHORS_MODEL = MODELS / "n5_sac300k_authors"

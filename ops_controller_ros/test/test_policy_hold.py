@@ -9,6 +9,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from ops_contract.config import make_config
 from ops_controller_ros.policy_hold import (
     HOLD_STEPS_MAX,
     HeldRunner,
@@ -17,7 +18,6 @@ from ops_controller_ros.policy_hold import (
 )
 from ops_controller_ros.policy_io import PolicyRunner, load_policy
 from ops_controller_ros.policy_switch import make_runner
-from ops_sim_ros.config import make_config
 from ops_sim_ros.env import OpsEnv
 
 STAGE = 5
@@ -134,8 +134,8 @@ def test_the_history_is_built_from_the_decisions_readings_alone():
 
 
 def test_the_node_declares_hold_steps_once_with_its_range():
+    from ops_contract.node_params import check_value
     from ops_controller_ros.policy_node import PARAMS
-    from ops_sim_ros.node_params import check_value
 
     spec = {s.name: s for s in PARAMS}["hold_steps"]
     assert spec.default == -1 and spec.read_only  # -1: the model's (1 where it has none)
@@ -158,7 +158,7 @@ def make_node():
 
 
 def test_the_node_holds_as_told_and_refuses_a_bad_value_before_spinning(make_node):
-    from ops_sim_ros.ros_interface import ParameterError
+    from ops_contract.ros_interface import ParameterError
 
     model = f"model:={MODELS / 'n3_easy'}"
     with pytest.raises(ParameterError, match=r"hold_steps must be -1 or 0 or int in \[1, 1001\]"):

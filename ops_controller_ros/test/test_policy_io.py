@@ -66,8 +66,8 @@ def test_metadata_round_trips(model_dir):
     assert meta["format_version"] == 1
     assert set(meta["versions"]) >= {"python", "numpy", "torch", "stable_baselines3", "gymnasium"}
     # Rebuilding the spec and config from the metadata gives the training env's back.
-    from ops_sim_ros.config import OpsConfig
-    from ops_sim_ros.observation import ObservationSpec
+    from ops_contract.config import OpsConfig
+    from ops_contract.observation import ObservationSpec
 
     assert ObservationSpec.from_dict(meta["observation_spec"]) == env.obs_spec
     assert OpsConfig.from_dict(meta["config"]) == env.config

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ops_contract.config import make_config
 from ops_controller_ros.policy_io import PolicyLoadError, load_policy
 from ops_controller_ros.policy_switch import (
     SwitchingRunner,
@@ -12,7 +13,6 @@ from ops_controller_ros.policy_switch import (
     make_runner,
     write_switch_model,
 )
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 MODELS = Path(__file__).resolve().parents[2] / "models"

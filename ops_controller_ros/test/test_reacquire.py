@@ -9,6 +9,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from ops_contract.config import make_config
 from ops_controller_ros.policy_io import PolicyLoadError, PolicyRunner, load_policy
 from ops_controller_ros.policy_switch import make_runner, needs_runner
 from ops_controller_ros.reacquire import (
@@ -17,7 +18,6 @@ from ops_controller_ros.reacquire import (
     WatchdogParams,
     watchdog_params_of,
 )
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 STAGE = 5

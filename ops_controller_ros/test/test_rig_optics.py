@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 import yaml
+from ops_contract.ros_interface import ParameterError
 from ops_controller_ros.rig_optics import hop_every_on_rig, nominal_optics, power_weight_on_rig
-from ops_sim_ros.ros_interface import ParameterError
 
 DEFAULTS = {"wavelength_nm": 1030.0, "pulse_fwhm_fs": 1000.0, "detector": "polarizer"}
 

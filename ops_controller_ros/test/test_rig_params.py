@@ -6,14 +6,14 @@ from __future__ import annotations
 from dataclasses import fields
 
 import pytest
+from ops_contract.config import make_config
+from ops_contract.node_params import check_value
+from ops_contract.rig_params import RIG_PARAM_KEYS, RIG_PARAMS, rig_config, rig_values
+from ops_contract.ros_interface import ParameterError
 from ops_controller_ros.controllers import make_controller
 from ops_controller_ros.spgd_node import PARAMS as SPGD_PARAMS
 from ops_controller_ros.tracker import NODE_FIELDS, PhaseTracker, TrackerParams, node_defaults
 from ops_controller_ros.tracker_node import PARAMS as TRACKER_PARAMS
-from ops_sim_ros.config import make_config
-from ops_sim_ros.node_params import check_value
-from ops_sim_ros.rig_params import RIG_PARAM_KEYS, RIG_PARAMS, rig_config, rig_values
-from ops_sim_ros.ros_interface import ParameterError
 
 UNSET = {spec.name: spec.default for spec in RIG_PARAMS}  # the node's defaults: -1, ideal
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ops_contract.config import make_config
 from ops_controller_ros.setpoint_range import (
     MARGIN_CYCLES,
     RangeKeeper,
@@ -16,7 +17,6 @@ from ops_controller_ros.setpoint_range import (
     move_inwards,
 )
 from ops_controller_ros.spgd import SpgdPid
-from ops_sim_ros.config import make_config
 from range_loop import PERIOD_FS, centred_range, drive, inside
 
 P = PERIOD_FS

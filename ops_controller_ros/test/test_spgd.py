@@ -4,8 +4,8 @@ leaves the side peaks; and the algebra of one iteration."""
 
 import numpy as np
 import pytest
+from ops_contract.config import make_config
 from ops_controller_ros.spgd import PAPER, SpgdParams, SpgdPid
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 

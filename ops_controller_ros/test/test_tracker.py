@@ -3,9 +3,9 @@ retrieval from the controller's own known moves, locking from random starts, hol
 
 import numpy as np
 import pytest
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import make_controller, next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 

@@ -7,9 +7,9 @@ twice."""
 from __future__ import annotations
 
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 

@@ -7,9 +7,9 @@ seeds took 59 / 72 / 47 false knots in 300 readings (hard mode has none) and hel
 from __future__ import annotations
 
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from ops_contract.config import make_config
 from ops_controller_ros.tracker import fit
 from ops_controller_ros.tracker.knots import knot_hypotheses, knot_starts
-from ops_sim_ros.config import make_config
 from ops_sim_ros.physics import stacker_from_config
 
 K, N, ITERATIONS = 10, 5, 12

@@ -6,9 +6,9 @@ with it."""
 from __future__ import annotations
 
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.tracker import fit
 from ops_controller_ros.tracker.weights import WeightedStacker
-from ops_sim_ros.config import make_config
 from ops_sim_ros.physics import stacker_from_config
 
 K, N = 7, 5

@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
-from ops_sim_ros.config import make_config
 from range_loop import drive, inside
 
 

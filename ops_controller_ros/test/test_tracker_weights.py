@@ -6,10 +6,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
 from ops_controller_ros.tracker.weights import source_noise_weights
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 

@@ -1,15 +1,9 @@
-"""Gymnasium environment over the simulator's ROS 2 topics; train, evaluate and benchmark CLIs.
+"""Gymnasium environment over the simulator's ROS 2 topics.
 
-Three parts:
-
-* :mod:`ops_gym_bridge.bridge`: the bridge itself, a Gymnasium env over the topics
-  (``bridge_env``) and its lockstep protocol (``lockstep_client``);
-* :mod:`ops_gym_bridge.experiments`: ``train``, ``evaluate`` (and ``realism_sweep``), the rollouts,
-  the one evaluation summary, the one model-building path, the hyper-parameter sets;
-* :mod:`ops_gym_bridge.table1`: the paper's Table 1, ``benchmark`` and ``report``.
-
-``cli_args`` holds what every command line shares; ``hyperparams/`` the YAML files (the
-hyper-parameter sets, the benchmark's profiles, the training bench's candidates).
+:mod:`ops_gym_bridge.bridge` holds the bridge: a Gymnasium env over the topics (``bridge_env``) and
+its lockstep protocol (``lockstep_client``). The experiment harness that trains and evaluates on it
+is the ``ops_experiments`` package; this package's ``train``, ``evaluate``, ``benchmark``,
+``report`` and ``realism_sweep`` executables run it, so ``ros2 run ops_gym_bridge train`` works.
 
 Importing this package registers the Gymnasium id ``ops_gym_bridge/RosPulseStacking-v0``
 (:class:`ops_gym_bridge.bridge.bridge_env.RosOpsEnv`; rclpy is imported only when one is created).

@@ -356,7 +356,7 @@ def test_a_long_silence_replaces_the_participant_and_the_steps_carry_on(procs):
 def test_memory_observation_over_the_bridge(sim3):
     """history=2 through the bridge: the in-process env's spec and space; after a reset the first
     frame in every slot with zero actions, then each new frame with the action that produced it
-    and the older ones shifted (the builder of ops_sim_ros.observation, as in-process)."""
+    and the older ones shifted (the builder of ops_contract.observation, as in-process)."""
     env = RosOpsEnv(
         stage=3,
         mode="easy",

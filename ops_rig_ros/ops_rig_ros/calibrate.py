@@ -12,8 +12,8 @@ import signal
 import sys
 
 import rclpy
-from ops_sim_ros.node_params import ParamSpec, declare_all
-from ops_sim_ros.ros_interface import ParameterError
+from ops_contract.node_params import ParamSpec, declare_all
+from ops_contract.ros_interface import ParameterError
 
 from .drivers.base import InstrumentError
 from .fringe import CalibrationError

@@ -150,7 +150,7 @@ def _stacker(stage: int, optics: dict | None):
 
 
 def optical_period_fs(optics: dict | None = None) -> float:
-    from ops_sim_ros.config import SPEED_OF_LIGHT_NM_PER_FS
+    from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
 
     return float((optics or {}).get("wavelength_nm", 1030.0)) / SPEED_OF_LIGHT_NM_PER_FS
 

@@ -3,7 +3,7 @@ lists them from here. Everything about the instruments is in the rig YAML (``con
 
 from __future__ import annotations
 
-from ops_sim_ros.node_params import DIAGNOSTICS_PERIOD_SPEC, ParamSpec, samples_per_slot_spec
+from ops_contract.node_params import DIAGNOSTICS_PERIOD_SPEC, ParamSpec, samples_per_slot_spec
 
 PARAMS = [
     ParamSpec(

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from ops_sim_ros.rig_file import RigFileError, parse_optics, read_rig_mapping
+from ops_contract.rig_file import RigFileError, parse_optics, read_rig_mapping
 
 #: Where a trace's reading of no light comes from (``trace_baseline``; ops_rig_ros.trace).
 BASELINES = ("record", "calibrated")
@@ -163,7 +163,7 @@ def load_rig_config(path) -> RigConfig:
     for i, a in enumerate(actuators):
         if not isinstance(a, dict) or "driver" not in a:
             raise RigConfigError(f"actuators[{i}] must be a mapping with its driver")
-    try:  # the keys the controllers' nominal model reads too (ops_sim_ros.rig_file)
+    try:  # the keys the controllers' nominal model reads too (ops_contract.rig_file)
         optics, _ = parse_optics(raw)
     except ValueError as exc:
         raise RigConfigError(str(exc)) from None

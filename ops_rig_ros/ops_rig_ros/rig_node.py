@@ -18,9 +18,9 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from ops_sim_ros.command_inbox import CommandInbox
-from ops_sim_ros.node_params import declare_all
-from ops_sim_ros.ros_interface import (
+from ops_contract.command_inbox import CommandInbox
+from ops_contract.node_params import declare_all
+from ops_contract.ros_interface import (
     QOS_RELIABLE,
     QOS_STATE,
     SERVICE_RESET,

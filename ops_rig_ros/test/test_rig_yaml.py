@@ -81,7 +81,7 @@ def test_calibration_round_trip(lab, tmp_path):
 
 
 def test_the_optics_are_checked_as_the_tracker_checks_them(lab, tmp_path):
-    """optics.* is the key set the tracker's ``rig_config`` reads (ops_sim_ros.rig_file)."""
+    """optics.* is the key set the tracker's ``rig_config`` reads (ops_contract.rig_file)."""
     cfg = load_rig_config(write_rig_yaml(lab, tmp_path / "rig.yaml", optics={"detector": "total"}))
     assert cfg.optics == {"wavelength_nm": 1030.0, "pulse_fwhm_fs": 1000.0, "detector": "total"}
     bad = write_rig_yaml(lab, tmp_path / "bad.yaml", optics={"wavelength_nm": -5})

@@ -3,8 +3,8 @@
 Importing this package registers the Gymnasium id ``ops_sim_ros/PulseStacking-v0``, without
 importing gymnasium itself: the id is registered at once when gymnasium is already loaded, or the
 moment it is imported. ``OpsEnv`` is loaded on first use (module ``__getattr__``), so a process
-that needs only the ROS helpers (a controller node: ``ops_sim_ros.ros_interface``,
-``ops_sim_ros.node_params``) loads neither the environment nor gymnasium.
+that needs only the ROS helpers (a controller node: ``ops_contract.ros_interface``,
+``ops_contract.node_params``) loads neither the environment nor gymnasium.
 """
 
 from __future__ import annotations

@@ -16,10 +16,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from rclpy.serialization import serialize_message
-from std_msgs.msg import Float32
-
-from .ros_interface import (
+from ops_contract.ros_interface import (
     QOS_RELIABLE,
     QOS_STATE,
     TOPIC_DELAYS,
@@ -29,6 +26,8 @@ from .ros_interface import (
     float_array_msg,
     trace_msg,
 )
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Float32
 
 TOPICS = (
     ("/" + TOPIC_DELAYS, "std_msgs/msg/Float32MultiArray", QOS_STATE),

@@ -6,11 +6,11 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
+from ops_contract.held import check_hold_steps, hold_after, resolve_hold_steps
+from ops_contract.observation import ObservationBuilder
+from ops_contract.rig_randomization import RigRanges
 
 from .env_setup import ACTION_TYPES, config_arguments, env_setup
-from .held import check_hold_steps, hold_after, resolve_hold_steps
-from .observation import ObservationBuilder
-from .rig_randomization import RigRanges
 from .simulation import BatchedSimulation, StepResult
 
 __all__ = ["ACTION_TYPES", "OpsEnv"]
@@ -22,7 +22,7 @@ class OpsEnv(gym.Env):
     Action: Box [-1, 1]^N. ``action_type="increment"`` (default): set-point changes in units of
     the actuator's max step per control step; ``"absolute"``: set-points in units of
     ``absolute_action_range_cycles`` optical periods. Observation: see
-    :mod:`ops_sim_ros.observation` (``observation_options={"history": k}``: the last k
+    :mod:`ops_contract.observation` (``observation_options={"history": k}``: the last k
     observations with the actions that led to them; ``{"observation": "authors"}``: the authors'
     observation set, with the applied delays). Reward: eq. (3), -(1 - P_N/P_max)^2.
     Episodes end by truncation after ``max_episode_steps`` steps, never by termination.
@@ -30,18 +30,18 @@ class OpsEnv(gym.Env):
     Every episode starts with the set-points at 0 and hidden delay errors drawn as the mode says
     (``reset(options={"setpoints_fs": ..., "delay_errors_fs": ...})`` chooses either instead).
     ``detector="polarizer"`` (default) or ``"total"`` and other overrides go to
-    :func:`~ops_sim_ros.config.make_config`.
+    :func:`~ops_contract.config.make_config`.
 
     ``info``: ``power`` (P_N/P_max), ``delays_fs`` (applied delays: set-point + noise),
     ``setpoints_fs``, ``main_pulse_energy``, ``rejected_energy``, ``clipped``.
 
     ``rig_randomize`` (``{key: (low, high)}`` of the rig's figures, or a
-    :class:`~ops_sim_ros.rig_randomization.RigRanges`): at every reset the env draws its rig
+    :class:`~ops_contract.rig_randomization.RigRanges`): at every reset the env draws its rig
     from its own random stream (the same seed, the same rigs), on top of its configuration
     (``realism`` and the other overrides); ``env.rig`` is the rig of the current episode, and
     ``env.config`` stays the configuration it was built with.
 
-    ``hold_steps`` (:mod:`ops_sim_ros.held`; default 1: none): each ``step`` is one decision of
+    ``hold_steps`` (:mod:`ops_contract.held`; default 1: none): each ``step`` is one decision of
     ``k`` simulator steps: the action on the first, ``k - 1`` held ones (increment 0) after it,
     fewer where the episode's ``max_episode_steps`` simulator steps end first; the observation,
     reward and info are the last reading's, and the observation's memory holds the decisions'

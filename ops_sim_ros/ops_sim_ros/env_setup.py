@@ -1,5 +1,5 @@
 """The one set-up shared by every environment class (in-process, vector, SB3 vector, ROS bridge):
-arguments -> validated :class:`~ops_sim_ros.config.OpsConfig` -> :class:`ObservationSpec` ->
+arguments -> validated :class:`~ops_contract.config.OpsConfig` -> :class:`ObservationSpec` ->
 observation and action spaces.
 """
 
@@ -8,8 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from .config import OpsConfig, make_config
-from .observation import ObservationSpec
+from ops_contract.config import OpsConfig, make_config
+from ops_contract.observation import ObservationSpec
 
 ACTION_TYPES = ("increment", "absolute")
 

@@ -12,11 +12,10 @@ from __future__ import annotations
 import importlib
 import time
 
+from ops_contract.node_params import ParamSpec, declare_all
+from ops_contract.ros_interface import NodeFatalError, ParameterError, run_node
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
-from .node_params import ParamSpec, declare_all
-from .ros_interface import NodeFatalError, ParameterError, run_node
 
 PARAMS = [
     ParamSpec("port", 8765, "WebSocket port (0: any free port, logged)", low=0, high=65535),

@@ -18,11 +18,8 @@ from collections import deque
 from pathlib import Path
 
 import numpy as np
-from rclpy.node import Node
-from std_msgs.msg import Float32, Float32MultiArray
-
-from .node_params import ParamSpec, declare_all
-from .ros_interface import (
+from ops_contract.node_params import ParamSpec, declare_all
+from ops_contract.ros_interface import (
     QOS_EVERY_READING,
     QOS_RELIABLE,
     TOPIC_INTENSITY,
@@ -33,6 +30,8 @@ from .ros_interface import (
     run_node,
     trace_from_msg,
 )
+from rclpy.node import Node
+from std_msgs.msg import Float32, Float32MultiArray
 
 SAVE_FORMATS = (".png", ".gif", ".mp4")
 PARAMS = [

@@ -35,8 +35,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from ops_contract.config import DETECTORS, SPEED_OF_LIGHT_NM_PER_FS
 
-from .config import DETECTORS, SPEED_OF_LIGHT_NM_PER_FS
 from .source import burst_amplitudes
 
 SECH_FWHM_FACTOR = 2.0 * np.arccosh(np.sqrt(2.0))  # FWHM of sech^2(t/t0) = 1.7627 t0
@@ -511,7 +511,7 @@ class PulseStacker:
 
         The bump peaks at sample ``samples_per_slot // 2`` of its slot with the slot energy
         (normalized by the perfectly stacked pulse's energy), so sampling the slot centres gives
-        the pulse energies back (:func:`ops_sim_ros.observation.pulse_energies_from_trace`).
+        the pulse energies back (:func:`ops_contract.observation.pulse_energies_from_trace`).
         """
         e = np.asarray(slot_energies, dtype=np.float32)
         tr = e[..., :, None] * self.trace_bump
@@ -550,7 +550,7 @@ def power_to_reward(power, p_min: float = 0.0) -> np.ndarray:
 
 
 def stacker_from_config(config, dtype: type = np.float32) -> PulseStacker:
-    """The :class:`PulseStacker` an :class:`~ops_sim_ros.config.OpsConfig` describes."""
+    """The :class:`PulseStacker` an :class:`~ops_contract.config.OpsConfig` describes."""
     return PulseStacker(
         stage=config.stage,
         wavelength_nm=config.wavelength_nm,

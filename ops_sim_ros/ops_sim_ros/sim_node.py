@@ -15,14 +15,9 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
-from std_msgs.msg import Float32, Float32MultiArray
-from std_srvs.srv import Trigger
-
-from .command_inbox import CommandInbox
-from .config import DETECTORS, LIMITS, MAX_STAGE, MODES, SPLITS, make_config
-from .node_params import (
+from ops_contract.command_inbox import CommandInbox
+from ops_contract.config import DETECTORS, LIMITS, MAX_STAGE, MODES, SPLITS, make_config
+from ops_contract.node_params import (
     DIAGNOSTICS_PERIOD_SPEC,
     ParamSpec,
     check_change,
@@ -30,8 +25,8 @@ from .node_params import (
     declare_all,
     samples_per_slot_spec,
 )
-from .rig_params import RIG_PARAM_KEYS, RIG_PARAMS
-from .ros_interface import (
+from ops_contract.rig_params import RIG_PARAM_KEYS, RIG_PARAMS
+from ops_contract.ros_interface import (
     QOS_RELIABLE,
     QOS_STATE,
     SERVICE_RESET,
@@ -49,6 +44,11 @@ from .ros_interface import (
     run_node,
     trace_msg,
 )
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from std_msgs.msg import Float32, Float32MultiArray
+from std_srvs.srv import Trigger
+
 from .simulation import BatchedSimulation
 
 # Noise and optics figures a user may override; names and units as in OpsConfig (optical cycles).

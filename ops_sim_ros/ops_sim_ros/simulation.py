@@ -14,9 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from ops_contract.arrays import clip as _clip
+from ops_contract.config import OpsConfig
 
-from .arrays import clip as _clip
-from .config import OpsConfig
 from .noise import DelayNoise
 from .physics import power_to_reward, stacker_from_config
 from .rig import Actuator, Digitizer

@@ -21,7 +21,7 @@ a long run reaches (delays carried cycles away by drift, hours into a run) besid
 a chain of episodes lasts 1 / (1 - q) episodes on average. The random draws come from the
 simulation's stream, so a seed still fixes everything.
 
-``hold_steps = k`` (default 1; :mod:`ops_sim_ros.held`): each ``step`` is one decision of k
+``hold_steps = k`` (default 1; :mod:`ops_contract.held`): each ``step`` is one decision of k
 simulator steps (the action, then k - 1 held steps), its observation built from the last reading
 alone, as ``OpsEnv(hold_steps=k)``; 0 (auto): k = the rig's latency_steps + 1 (one rig for the
 batch).
@@ -35,10 +35,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
+from ops_contract.held import hold_after, resolve_hold_steps
+from ops_contract.observation import ObservationBuilder
 
 from .env_setup import config_arguments, env_setup
-from .held import hold_after, resolve_hold_steps
-from .observation import ObservationBuilder
 from .simulation import BatchedSimulation, StepResult
 
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from ops_sim_ros.config import OpsConfig, make_config
+from ops_contract.config import OpsConfig, make_config
 from ops_sim_ros.noise import DelayNoise
 from ops_sim_ros.simulation import BatchedSimulation
 

@@ -255,7 +255,7 @@ def test_batched_equals_unbatched_and_float32_matches_float64():
 
 
 def test_trace_layout_and_pulse_energies_round_trip():
-    from ops_sim_ros.observation import pulse_energies_from_trace
+    from ops_contract.observation import pulse_energies_from_trace
 
     ps = PulseStacker(3, samples_per_slot=8)
     d = np.array([[0.3, 1.1, -0.4], [0.0, 0.0, 0.0]])

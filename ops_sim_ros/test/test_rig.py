@@ -5,7 +5,7 @@ import re
 
 import numpy as np
 import pytest
-from ops_sim_ros.config import REALISM_PRESETS, make_config
+from ops_contract.config import REALISM_PRESETS, make_config
 from ops_sim_ros.rig import Actuator, digitize, quantize
 from ops_sim_ros.simulation import BatchedSimulation
 

@@ -45,7 +45,7 @@ def test_read_only_parameters_and_bounded_noise(make_node):
 
 
 def test_unbounded_noise_at_start_is_a_parameter_error(make_node):
-    from ops_sim_ros.ros_interface import ParameterError
+    from ops_contract.ros_interface import ParameterError
 
     with pytest.raises(ParameterError, match="jitter_sigma_cycles"):
         make_node("jitter_sigma_cycles:=1.0e+30")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ops_sim_ros.config import REALISM_PRESETS, make_config
+from ops_contract.config import REALISM_PRESETS, make_config
 from ops_sim_ros.physics import PulseStacker, stacker_from_config
 from ops_sim_ros.simulation import BatchedSimulation
 from ops_sim_ros.source import amplitude_noise, burst_amplitudes

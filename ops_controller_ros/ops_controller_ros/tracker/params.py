@@ -2,7 +2,7 @@
 
 :class:`TrackerParams` is the one default set: ``evaluate --controller tracker``, the benchmark
 and the ``tracker`` node all start from it. A field declared with ``node=True`` is also a
-parameter of the node (``ops_tracker``), whose :class:`~ops_sim_ros.node_params.ParamSpec` is
+parameter of the node (``ops_tracker``), whose :class:`~ops_contract.node_params.ParamSpec` is
 generated from the same declaration (:func:`node_param_specs`), so its name, description,
 range and default cannot drift apart from the tracker's.
 
@@ -445,7 +445,7 @@ def node_defaults() -> dict:
 
 def node_param_specs() -> list:
     """The node's ParamSpecs of its TrackerParams fields, generated from the declarations."""
-    from ops_sim_ros.node_params import ParamSpec
+    from ops_contract.node_params import ParamSpec
 
     specs = []
     for name, default in node_defaults().items():

@@ -3,7 +3,7 @@
 ``RosOpsEnv(stage=3, mode="easy")`` has the same observation and action spaces as
 ``ops_sim_ros.OpsEnv`` for the same stage and configuration (the same set-up,
 :func:`ops_sim_ros.env_setup.env_setup`), and builds its observations with the same function
-(:class:`ops_sim_ros.observation.ObservationBuilder`, memory included).
+(:class:`ops_contract.observation.ObservationBuilder`, memory included).
 
 ``step`` adds the scaled action to the current set-points and sends the absolute set-points;
 ``reset`` calls ``ops/reset``. The ROS side (context, node, the lockstep protocol, waits,
@@ -18,8 +18,8 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
+from ops_contract.observation import ObservationBuilder, pulse_energies_from_trace
 from ops_sim_ros.env_setup import env_setup
-from ops_sim_ros.observation import ObservationBuilder, pulse_energies_from_trace
 
 from .lockstep_client import (  # noqa: F401  (the bridge's errors, importable from here)
     BridgeError,
@@ -126,7 +126,7 @@ class RosOpsEnv(gym.Env):
     def _observe(self, msgs, action=None) -> tuple[np.ndarray, dict[str, Any]]:
         """Observation and info of the simulator's answer; ``action``: the normalized action of
         the step that produced it (None: a new episode)."""
-        from ops_sim_ros.ros_interface import trace_from_msg
+        from ops_contract.ros_interface import trace_from_msg
 
         intensity, power_msg, reward_msg, delays_msg, *actual_msg = msgs
         trace, samples = trace_from_msg(intensity)

@@ -130,7 +130,7 @@ class LockstepClient:
 
     def _start_ros(self, namespace: str, domain_id: int | None, node_name: str | None) -> None:
         import rclpy
-        from ops_sim_ros.ros_interface import (
+        from ops_contract.ros_interface import (
             QOS_RELIABLE,
             SERVICE_RESET,
             TOPIC_DELAY_CMD,

@@ -17,7 +17,7 @@ import threading
 from pathlib import Path
 
 import yaml
-from ops_sim_ros.config import MODES, REALISMS
+from ops_contract.config import MODES, REALISMS
 
 from .optics import SimOptics
 from .piezo_pty import SimPiezo

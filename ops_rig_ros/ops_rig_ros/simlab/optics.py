@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from ops_sim_ros.config import make_config
+from ops_contract.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 

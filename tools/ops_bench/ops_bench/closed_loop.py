@@ -38,7 +38,7 @@ SECTION = "## Closed loop over DDS"
 
 def echo_main():
     """Republish every ops/delay_cmd on ops/delays, nothing else (the raw transport)."""
-    from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DELAY_CMD, TOPIC_DELAYS, run_node
+    from ops_contract.ros_interface import QOS_RELIABLE, TOPIC_DELAY_CMD, TOPIC_DELAYS, run_node
     from rclpy.node import Node
     from std_msgs.msg import Float32MultiArray
 
@@ -56,7 +56,7 @@ class Probe:
 
     def __init__(self):
         import rclpy
-        from ops_sim_ros.ros_interface import QOS_RELIABLE
+        from ops_contract.ros_interface import QOS_RELIABLE
         from std_msgs.msg import Float32, Float32MultiArray
 
         self.rclpy = rclpy
@@ -166,7 +166,7 @@ def power_node(name: str):
     """An rclpy node (rclpy initialised) that records every ops/power reading: yields
     ``(node, readings)``, the list growing as the node spins; destroyed on leaving."""
     import rclpy
-    from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_POWER
+    from ops_contract.ros_interface import QOS_RELIABLE, TOPIC_POWER
     from std_msgs.msg import Float32
 
     node = rclpy.create_node(name)

@@ -1,6 +1,6 @@
 """Continuous operation over DDS: `ros2 run ops_sim_ros sim` (free-running) and a controller node
 (`tracker`, `spgd` or `policy -p model:=DIR`) as real processes, for a given time per simulator
-seed; prints the figures of `evaluate --continuous` (ops_gym_bridge.experiments.continuous)
+seed; prints the figures of `evaluate --continuous` (ops_experiments.continuous)
 computed from every `ops/power` reading received: fraction >= 0.95 after the first lock, lock
 losses (< 0.8), worst reading, readings to the first lock.
 
@@ -24,7 +24,7 @@ from ops_bench.closed_loop import REPO, power_node, start, stop_all
 def run_once(args, seed: int, logdir: Path) -> list[float]:
     """The `ops/power` readings of one run: from the controller's start for ``args.seconds``."""
     import rclpy
-    from ops_sim_ros.ros_interface import TOPIC_POWER
+    from ops_contract.ros_interface import TOPIC_POWER
 
     sim_cmd = ["ros2", "run", "ops_sim_ros", "sim", "--ros-args", "-p", f"stage:={args.stage}"]
     sim_cmd += ["-p", f"mode:={args.mode}", "-p", f"split:={args.split}", "-p", f"seed:={seed}"]
@@ -97,7 +97,7 @@ def main(argv=None) -> int:
     os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 30))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     import rclpy
-    from ops_gym_bridge.experiments import continuous
+    from ops_experiments import continuous
 
     logdir = REPO / "runs" / "bench_continuous_dds"
     logdir.mkdir(parents=True, exist_ok=True)

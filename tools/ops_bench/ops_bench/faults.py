@@ -50,7 +50,7 @@ THRESHOLD = 0.95
 def record_main() -> None:
     """Run on host A: print 'wall-time power' for every ops/power reading."""
     import rclpy
-    from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_POWER
+    from ops_contract.ros_interface import QOS_RELIABLE, TOPIC_POWER
     from std_msgs.msg import Float32
 
     rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
@@ -73,7 +73,7 @@ def record_main() -> None:
 def flood_main(rate: float, seconds: float, stage: int) -> None:
     """Run on host A: publish rejected delay commands (one delay too few) at ``rate`` per s."""
     import rclpy
-    from ops_sim_ros.ros_interface import QOS_RELIABLE, TOPIC_DELAY_CMD
+    from ops_contract.ros_interface import QOS_RELIABLE, TOPIC_DELAY_CMD
     from std_msgs.msg import Float32MultiArray
 
     rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes

@@ -19,7 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-from ops_gym_bridge.table1.report import PAPER_TABLE1
+from ops_experiments.table1.report import PAPER_TABLE1
 
 from ops_bench import REPO
 from ops_bench.reference_actions import model_realism

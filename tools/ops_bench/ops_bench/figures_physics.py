@@ -13,7 +13,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-from ops_sim_ros.config import make_config
+from ops_contract.config import make_config
 from ops_sim_ros.physics import PulseStacker, geometry_matrices, input_coding
 from ops_sim_ros.rendering import draw_trace
 from ops_sim_ros.rig import Actuator

@@ -15,8 +15,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import make_controller, next_command
-from ops_sim_ros.config import make_config
 from ops_sim_ros.env import OpsEnv
 from ops_sim_ros.rendering import draw_trace
 

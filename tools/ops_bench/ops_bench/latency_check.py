@@ -12,9 +12,9 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker
-from ops_sim_ros.config import make_config
 from ops_sim_ros.simulation import BatchedSimulation
 
 CASES = [(1, 0, "medium"), (1, 0, "hard"), (2, 1, "medium"), (2, 1, "hard"), (0, 1, "medium"),

@@ -18,8 +18,8 @@ import sys
 import time
 
 import numpy as np
+from ops_contract.observation import build_observation
 from ops_sim_ros import OpsEnv
-from ops_sim_ros.observation import build_observation
 
 from ops_bench.docs import publish
 

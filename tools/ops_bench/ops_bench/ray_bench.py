@@ -38,7 +38,7 @@ def measure(root: Path, profile: str) -> dict:
             cluster.start_worker()
             importable = cluster.project_importable_on_worker()
             out = root / "out"
-            cmd = ["env", "-C", str(root), sys.executable, "-m", "ops_gym_bridge.table1.benchmark"]
+            cmd = ["env", "-C", str(root), sys.executable, "-m", "ops_experiments.table1.benchmark"]
             cmd += ["--profile", profile]
             cmd += ["--out", str(out), "--ray-address", cluster.address, "--status-every", "60"]
             t0 = time.monotonic()

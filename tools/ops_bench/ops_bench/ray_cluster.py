@@ -27,7 +27,13 @@ PROJECT_VARS = ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "CMAKE_
 PROBE = (
     "import importlib.util as u, json; print(json.dumps([bool(u.find_spec(p)) for p in {pkgs!r}]))"
 )
-PACKAGES = ("ops_gym_bridge", "ops_sim_ros", "ops_controller_ros")
+PACKAGES = (
+    "ops_contract",
+    "ops_sim_ros",
+    "ops_controller_ros",
+    "ops_gym_bridge",
+    "ops_experiments",
+)
 
 
 def ray_exe() -> str:

@@ -48,8 +48,8 @@ def rig_arguments(metadata: dict) -> list[str]:
 def model_env(loaded, num_envs: int):
     """The model's own environment (stage, mode, detector, rig, observation set), testing
     split."""
+    from ops_contract.config import make_config
     from ops_controller_ros.policy_io import observation_spec_of
-    from ops_sim_ros.config import make_config
     from ops_sim_ros.vec_env import OpsVectorEnv
 
     config = make_config(

@@ -105,7 +105,7 @@ INDEX_INTRO = """\
 Measured results of the project: learning (`ros2 run ops_gym_bridge train`, `evaluate`,
 `benchmark`), the controllers (SPGD-PID, the model-based tracker, learned policies) and their
 long runs. The learned agents are trained with the paper's selected hyper-parameters (appendix
-B.1, Tables 2–4, as mapped in `ops_gym_bridge/ops_gym_bridge/hyperparams/*.yaml`) unless a page
+B.1, Tables 2–4, as mapped in `ops_experiments/ops_experiments/yaml/*.yaml`) unless a page
 says otherwise. Not part of CI: these runs take minutes to hours each. One page per topic;
 every table on them is rendered by `ops-bench results` from the stored runs under
 `docs/results/` and names the command that stored them (commands for the rest are beside each
@@ -136,8 +136,8 @@ def command_of(folder: Path) -> str:
 
 def render_table1(args: list[str], page_dir: Path) -> str:
     """Table 1 of one benchmark folder, as ``ros2 run ops_gym_bridge report`` writes it."""
-    from ops_gym_bridge.table1.report import table1_md, table1_rows
-    from ops_gym_bridge.table1.runs import load_runs
+    from ops_experiments.table1.report import table1_md, table1_rows
+    from ops_experiments.table1.runs import load_runs
 
     (folder,) = [REPO / a for a in args]
     caption = (
@@ -150,8 +150,8 @@ def render_table1(args: list[str], page_dir: Path) -> str:
 
 def render_table1_sets(args: list[str], page_dir: Path) -> str:
     """Table 1 cells of several benchmark folders side by side (``report A B C``)."""
-    from ops_gym_bridge.table1.report import table1_rows, table1_sets_md
-    from ops_gym_bridge.table1.runs import load_runs
+    from ops_experiments.table1.report import table1_rows, table1_sets_md
+    from ops_experiments.table1.runs import load_runs
 
     folders = [REPO / a for a in args]
     tables = {f.name: table1_rows(load_runs(f)) for f in folders}

@@ -16,9 +16,9 @@ import numpy as np
 
 def held_share(mode, gain, power_weight, seed, steps, settle, realism, exact_power=False):
     """Share of readings ``settle``..``steps`` whose true P_N/P_max is >= 0.95."""
+    from ops_contract.config import make_config
     from ops_controller_ros.controllers import next_command
     from ops_controller_ros.tracker import PhaseTracker, TrackerParams
-    from ops_sim_ros.config import make_config
     from ops_sim_ros.simulation import BatchedSimulation
 
     config = make_config(5, mode, "test", realism=realism)

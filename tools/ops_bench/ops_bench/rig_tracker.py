@@ -168,7 +168,7 @@ def main(argv=None) -> int:
     procs = []
     power: list[tuple[float, float]] = []
     import rclpy
-    from ops_sim_ros.ros_interface import QOS_EVERY_READING, TOPIC_POWER
+    from ops_contract.ros_interface import QOS_EVERY_READING, TOPIC_POWER
     from std_msgs.msg import Float32
 
     rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes

@@ -15,9 +15,9 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from ops_contract.observation import ObservationSpec
 from ops_controller_ros.policy_io import load_policy
 from ops_sim_ros.env import OpsEnv
-from ops_sim_ros.observation import ObservationSpec
 
 
 def main(argv=None) -> int:

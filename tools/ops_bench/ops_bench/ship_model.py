@@ -32,7 +32,7 @@ import sys
 from pathlib import Path
 
 from ops_controller_ros.policy_io import CHECKPOINT_NAME, read_metadata, save_metadata
-from ops_gym_bridge.experiments.progress_log import read_progress
+from ops_experiments.progress_log import read_progress
 
 from ops_bench.reference_actions import rig_arguments
 

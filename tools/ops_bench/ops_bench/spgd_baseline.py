@@ -46,7 +46,7 @@ def evaluate(stage: int, mode: str, out: Path, params: dict) -> dict:
     cmd = (
         [ros2, "run", "ops_gym_bridge", "evaluate"]
         if ros2
-        else [sys.executable, "-m", "ops_gym_bridge.experiments.evaluate"]
+        else [sys.executable, "-m", "ops_experiments.evaluate"]
     )
     cmd += [
         "--spgd",
@@ -129,8 +129,8 @@ SWEEP = (  # (gain, ki, perturbation_fs, momentum)
 
 
 def sweep(stage: int, base: dict, seeds: int = 4, iterations: int = 300) -> None:
-    from ops_gym_bridge.experiments.rollouts import rollout_controller
-    from ops_sim_ros.config import make_config
+    from ops_contract.config import make_config
+    from ops_experiments.rollouts import rollout_controller
 
     def run(params, mode, **overrides):
         config = make_config(stage, mode, "test", **overrides)
@@ -203,7 +203,7 @@ def main(argv=None):
         sweep(args.stage, params)
         return
 
-    from ops_sim_ros.config import MODES
+    from ops_contract.config import MODES
 
     out = Path(args.out)
     results = {m: evaluate(args.stage, m, out / f"n{args.stage}_{m}", params) for m in MODES}

@@ -11,8 +11,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from ops_gym_bridge.cli_args import parse_key_values
-from ops_gym_bridge.experiments.rollouts import controller_episodes
+from ops_experiments.cli_args import parse_key_values
+from ops_experiments.rollouts import controller_episodes
 from ops_sim_ros.env import OpsEnv
 
 
@@ -49,7 +49,7 @@ def recorded_episodes(cfg, controller: str, params: dict, seeds, episodes: int, 
     """``evaluate --controller``'s episodes of ``controller`` on ``cfg`` (simulator and nominal
     model alike, ``cfg.episode_steps`` steps): ``episodes`` for each of ``seeds``, numbered
     0, 1, ... across the seeds for ``on_step(row, step, ctl, env, result)``
-    (:func:`~ops_gym_bridge.experiments.rollouts.controller_episodes`). Returns each
+    (:func:`~ops_experiments.rollouts.controller_episodes`). Returns each
     episode's final P_N/P_max, in that order."""
     steps = cfg.episode_steps
     env = OpsEnv.from_config(cfg, max_episode_steps=steps)

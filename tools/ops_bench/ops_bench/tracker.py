@@ -6,7 +6,7 @@ Usage (after `source setup.bash`):
   OPENBLAS_NUM_THREADS=1 ops-bench tracker [--seeds 5] [--episodes 5]
       [--write docs/tracker.md]
 Every row runs the same loop as `ros2 run ops_gym_bridge evaluate --controller tracker`
-(ops_gym_bridge.experiments.rollouts.controller_episodes).
+(ops_experiments.rollouts.controller_episodes).
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import sys
 import time
 
 import numpy as np
-from ops_gym_bridge.cli_args import parse_key_values
-from ops_gym_bridge.experiments.rollouts import rollout_controller
-from ops_sim_ros.config import MODES, make_config
+from ops_contract.config import MODES, make_config
+from ops_experiments.cli_args import parse_key_values
+from ops_experiments.rollouts import rollout_controller
 
 from ops_bench.docs import write_section
 

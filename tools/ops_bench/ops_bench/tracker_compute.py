@@ -3,7 +3,7 @@
 In process, in the testing environment (N = 5, polarizer detector; the ideal rig, or
 ``--realism``, told to the tracker): ``command`` + ``observe`` of every reading after the first
 lock (median, p99, max, share over 10 ms), with BLAS on one thread (what every node and CLI
-sets, ops_sim_ros.threads) and on the library's default (one per core), plus the time of one
+sets, ops_contract.threads) and on the library's default (one per core), plus the time of one
 knot test (the hypotheses of :meth:`PhaseTracker._knot_fit`: stage x knot position x side) and
 one tracking fit on a locked state. Timings depend on the load: the 1-minute load average is
 printed and written beside them; ``--busy N`` runs N busy-looping processes beside the
@@ -24,8 +24,8 @@ import sys
 import time
 
 import numpy as np
-from ops_gym_bridge.cli_args import parse_key_values
-from ops_sim_ros.config import REALISMS
+from ops_contract.config import REALISMS
+from ops_experiments.cli_args import parse_key_values
 from threadpoolctl import threadpool_limits
 
 from ops_bench.docs import write_section

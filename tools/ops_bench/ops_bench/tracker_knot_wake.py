@@ -27,11 +27,11 @@ import argparse
 import time
 
 import numpy as np
+from ops_contract.config import MODES, REALISMS, make_config
+from ops_contract.threads import limit_blas_threads
 from ops_controller_ros.tracker import TrackerParams
-from ops_gym_bridge import cli_args
-from ops_gym_bridge.experiments.envs import EPISODE_STEPS
-from ops_sim_ros.config import MODES, REALISMS, make_config
-from ops_sim_ros.threads import limit_blas_threads
+from ops_experiments import cli_args
+from ops_experiments.envs import EPISODE_STEPS
 
 from ops_bench import study
 

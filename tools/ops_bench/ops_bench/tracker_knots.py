@@ -22,10 +22,10 @@ import time
 from collections import Counter
 
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import make_controller
-from ops_gym_bridge.cli_args import parse_key_values
-from ops_gym_bridge.experiments.continuous import lock_figures
-from ops_sim_ros.config import make_config
+from ops_experiments.cli_args import parse_key_values
+from ops_experiments.continuous import lock_figures
 from ops_sim_ros.env import OpsEnv
 
 

@@ -26,13 +26,13 @@ import os
 import time
 
 import numpy as np
+from ops_contract.config import MODES, REALISMS, make_config
+from ops_contract.threads import limit_blas_threads
 from ops_controller_ros.controllers import make_controller, next_command
 from ops_controller_ros.tracker import TrackerParams
-from ops_gym_bridge.cli_args import positive_int
-from ops_gym_bridge.experiments.continuous import lock_figures
-from ops_sim_ros.config import MODES, REALISMS, make_config
+from ops_experiments.cli_args import positive_int
+from ops_experiments.continuous import lock_figures
 from ops_sim_ros.env import OpsEnv
-from ops_sim_ros.threads import limit_blas_threads
 
 from ops_bench import study
 

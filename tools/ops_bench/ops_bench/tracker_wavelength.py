@@ -19,10 +19,10 @@ import sys
 import time
 
 import numpy as np
+from ops_contract.config import make_config
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
-from ops_gym_bridge.experiments.continuous import lock_figures
-from ops_sim_ros.config import make_config
+from ops_experiments.continuous import lock_figures
 from ops_sim_ros.env import OpsEnv
 
 from ops_bench.docs import write_section

@@ -1,6 +1,6 @@
 """Training speed and learning against wall time of candidate hyper-parameter sets (issue 11).
 
-For each candidate (an algorithm, a hyper-parameter set of ``ops_gym_bridge/hyperparams``, a
+For each candidate (an algorithm, a hyper-parameter set of ``ops_experiments/yaml``, a
 number of environments, an observation memory) this trains in-process, exactly as ``ros2 run
 ops_gym_bridge train`` builds its model and environments (torch on ``--torch-threads`` threads),
 for ``--minutes`` of wall time, and every ``--eval-every`` seconds evaluates the deterministic
@@ -14,7 +14,7 @@ policy on the testing environment (``--eval-episodes`` parallel 200-step episode
         --json runs/bench_training.json
 
 Candidates: ``--candidates paper-sac fast-sac fast-tqc fast-crossq fast-sac-h2`` (see
-ops_gym_bridge/hyperparams/candidates.yaml). The machine's load matters: report it with the figures.
+ops_experiments/yaml/candidates.yaml). The machine's load matters: report it with the figures.
 """
 
 from __future__ import annotations
@@ -29,16 +29,16 @@ from pathlib import Path
 
 def candidates() -> dict[str, dict]:
     """name -> algo, hyperparams_set, n_envs, obs_history, overrides (the YAML beside the
-    hyper-parameters, ``ops_gym_bridge/hyperparams/candidates.yaml``)."""
-    from ops_gym_bridge.experiments import hyperparams as hp
+    hyper-parameters, ``ops_experiments/ops_experiments/yaml/candidates.yaml``)."""
+    from ops_experiments import hyperparams as hp
 
     return hp.candidates()
 
 
 def evaluate_policy(model, stage, mode, detector, history, episodes, seed=0) -> float:
     """Mean final P_N / P_max of ``episodes`` deterministic test-environment episodes."""
-    from ops_gym_bridge.experiments.rollouts import rollout_policy
-    from ops_sim_ros.config import make_config
+    from ops_contract.config import make_config
+    from ops_experiments.rollouts import rollout_policy
 
     cfg = make_config(stage, mode, "test", detector=detector, episode_steps=200)
     res = rollout_policy(
@@ -54,10 +54,10 @@ def evaluate_policy(model, stage, mode, detector, history, episodes, seed=0) -> 
 
 def build(name: str, args):
     """(model, venv, params) of a candidate, built by ``train``'s own path
-    (``ops_gym_bridge.experiments.build.build_model``) in a scratch run directory."""
+    (``ops_experiments.build.build_model``) in a scratch run directory."""
     import tempfile
 
-    from ops_gym_bridge.experiments.build import build_model
+    from ops_experiments.build import build_model
 
     c = candidates()[name]
     overrides = [*c["overrides"], *args.hyperparams]

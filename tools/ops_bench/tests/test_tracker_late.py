@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from ops_gym_bridge.experiments.continuous import lock_figures
+from ops_experiments.continuous import lock_figures
 
 from ops_bench import tracker_late
 

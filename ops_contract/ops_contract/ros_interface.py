@@ -1,0 +1,258 @@
+"""The ROS 2 face shared by every node of the project: topic names, QoS, message conversions.
+
+Topic names are relative (``ops/...``) so that ``--ros-args -r __ns:=/rig2`` moves a whole rig.
+Delays are femtoseconds relative to each stage's nominal stacking delay (see docs/interfaces.md).
+
+Every message a node takes in goes through one rule (:func:`delays_from_msg`,
+:func:`trace_from_msg`, :func:`power_from_msg`, :func:`check_layout`): shape, layout, finiteness and
+magnitude; what breaks it is dropped with a throttled warning (:class:`MessageGuard`), so no
+message can stop a node.
+"""
+
+from __future__ import annotations
+
+import array
+import math
+import signal
+import sys
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float32MultiArray, MultiArrayDimension
+
+from .config import LIMITS, MAX_STAGE
+from .threads import limit_blas_threads
+
+TOPIC_INTENSITY = "ops/intensity"
+TOPIC_POWER = "ops/power"
+TOPIC_REWARD = "ops/reward"
+TOPIC_DELAYS = "ops/delays"
+TOPIC_DELAY_CMD = "ops/delay_cmd"
+#: Simulator-only oracle: the delays really applied (set-point + hidden delay-line error), fs. A
+#: real rig cannot publish it; a policy trained on the authors' observation set needs it.
+TOPIC_DELAYS_ACTUAL = "ops/delays_actual"
+SERVICE_RESET = "ops/reset"
+TOPIC_DIAGNOSTICS = "/diagnostics"
+
+#: Outputs and commands: reliable, a short queue. A flood of commands is bounded by the depth.
+QOS_RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: A subscriber that wants every reading although its own callbacks can be slow (the monitor draws
+#: a frame in ~0.1 s while 100 readings/s arrive): ten seconds of readings queue up.
+QOS_EVERY_READING = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+#: A controller's view of a free-running simulator's outputs: best effort, the latest few. A lost
+#: reading is not repaired (the next step's comes one sample period later, where a reliable
+#: reader would hold every later one until the lost one is sent again), and under CPU load stale
+#: readings are dropped instead of queued. Reliable publishers match it.
+QOS_READINGS = QoSProfile(depth=2, reliability=ReliabilityPolicy.BEST_EFFORT)
+#: ``ops/delays`` is state: latched (transient local, last value only), so a controller that
+#: starts later - even against a lockstep simulator that publishes only when commanded - learns
+#: the current set-points at once. Volatile subscribers match it too and see only new values.
+QOS_STATE = QoSProfile(
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+
+class ParameterError(ValueError):
+    """A node parameter has a value the node cannot run with."""
+
+
+class NodeFatalError(RuntimeError):
+    """The node met a condition it cannot run on (e.g. a model for another stage)."""
+
+
+class MessageError(ValueError):
+    """A message a node cannot use: it is dropped (see :class:`MessageGuard`)."""
+
+
+#: Largest magnitude of a reading (normalized power, reward, trace sample) and of a delay (fs) in
+#: a message; beyond them a message is malformed, not a measurement.
+MAX_READING = 1.0e3
+MAX_DELAY_FS = 1.0e6
+
+
+def float_array_msg(values, labels: Sequence[str] = ("stage",)) -> Float32MultiArray:
+    """A Float32MultiArray with its layout filled (one dimension per label, row-major)."""
+    arr = np.asarray(values, dtype=np.float32)
+    if arr.ndim != len(labels):
+        raise ValueError(f"{arr.ndim}-D values need {arr.ndim} labels, got {list(labels)}")
+    msg = Float32MultiArray()
+    strides = np.cumprod(arr.shape[::-1])[::-1]
+    msg.layout.dim = [
+        MultiArrayDimension(label=label, size=int(size), stride=int(stride))
+        for label, size, stride in zip(labels, arr.shape, strides, strict=True)
+    ]
+    data = array.array("f")
+    data.frombytes(arr.tobytes())  # the fast path of the generated setter: no per-element checks
+    msg.data = data
+    return msg
+
+
+def trace_msg(trace: np.ndarray, samples_per_slot: int) -> Float32MultiArray:
+    """The detected trace as a (slot, sample) array message."""
+    trace = np.asarray(trace, dtype=np.float32).reshape(-1, samples_per_slot)
+    return float_array_msg(trace, labels=("slot", "sample"))
+
+
+def layout_shape(msg: Float32MultiArray) -> tuple[int, ...]:
+    """The shape an array message's layout declares ((len(data),) when it has none).
+
+    MessageError when the layout does not describe the data (sizes whose product is not the
+    number of values, a data offset)."""
+    n = len(msg.data)
+    if msg.layout.data_offset != 0:
+        raise MessageError(f"layout data_offset is {msg.layout.data_offset}, expected 0")
+    if not msg.layout.dim:
+        return (n,)
+    shape = tuple(int(d.size) for d in msg.layout.dim)
+    if math.prod(shape) != n:
+        raise MessageError(
+            f"layout says {' x '.join(map(str, shape))} but the message has {n} values"
+        )
+    return shape
+
+
+def check_layout(msg: Float32MultiArray) -> str | None:
+    """Why an array message's layout does not describe its data, or None."""
+    try:
+        layout_shape(msg)
+    except MessageError as exc:
+        return str(exc)
+    return None
+
+
+def _bounded(data, limit: float, what: str) -> np.ndarray:
+    arr = np.asarray(data, dtype=np.float32)
+    bad = np.flatnonzero(~(np.abs(arr) <= limit))  # NaN, inf and too large
+    if bad.size:
+        i = int(bad[0])
+        raise MessageError(f"{what} {arr[i]!r} at index {i} (allowed: finite, |x| <= {limit:g})")
+    return arr
+
+
+def delays_from_msg(msg: Float32MultiArray) -> np.ndarray:
+    """The set-points (fs) of an ``ops/delays`` message; MessageError when it is malformed."""
+    shape = layout_shape(msg)
+    if len(shape) != 1 or not 1 <= shape[0] <= MAX_STAGE:
+        raise MessageError(
+            f"delays of shape {shape}: expected one value per stage, 1 to {MAX_STAGE} values"
+        )
+    return _bounded(msg.data, MAX_DELAY_FS, "delay").astype(np.float64)
+
+
+def trace_from_msg(msg: Float32MultiArray) -> tuple[np.ndarray, int]:
+    """Flat trace and samples per slot from an intensity message (inverse of :func:`trace_msg`).
+
+    MessageError unless the layout is (slot, sample) (or flat: one sample per slot) with 2^N - 1
+    slots, N = 1 .. MAX_STAGE, samples per slot within ``LIMITS``, and finite, bounded values."""
+    shape = layout_shape(msg)
+    if len(shape) not in (1, 2):
+        raise MessageError(f"trace of shape {shape}: expected (slot, sample)")
+    slots, samples = (shape[0], 1) if len(shape) == 1 else shape
+    low, high = LIMITS["samples_per_slot"]
+    if not low <= samples <= high:
+        raise MessageError(f"{samples} samples per slot (allowed: {low} to {high})")
+    stage = (slots + 1).bit_length() - 1
+    if slots + 1 != 2**stage or not 1 <= stage <= MAX_STAGE:
+        raise MessageError(f"{slots} pulse slots (a stage-N trace has 2^N - 1, N = 1 .. 10)")
+    return _bounded(msg.data, MAX_READING, "trace sample"), samples
+
+
+def power_from_msg(msg) -> float:
+    """The value of an ``ops/power`` (or ``ops/reward``) message; MessageError unless finite and
+    within +-MAX_READING."""
+    return float(_bounded([msg.data], MAX_READING, "reading")[0])
+
+
+class MessageGuard:
+    """Takes messages through a check; drops those it rejects, with one warning per topic at
+    most every ``period_s`` that counts the drops and names the latest reason."""
+
+    def __init__(self, node: Node, period_s: float = 5.0):
+        self._node = node
+        self.period_s = float(period_s)
+        self.dropped: dict[str, int] = {}
+        self._warned: dict[str, tuple[float, int]] = {}  # topic -> (time, drops then)
+
+    def take(self, topic: str, check: Callable, msg):
+        """``check(msg)``, or None when it raises MessageError (the message is dropped)."""
+        try:
+            return check(msg)
+        except MessageError as exc:
+            self.drop(topic, str(exc))
+            return None
+
+    def drop(self, topic: str, reason: str) -> None:
+        count = self.dropped[topic] = self.dropped.get(topic, 0) + 1
+        now = time.monotonic()
+        last, before = self._warned.get(topic, (float("-inf"), 0))
+        if now - last < self.period_s:
+            return
+        self._warned[topic] = (now, count)
+        new = count - before
+        self._node.get_logger().warning(
+            f"dropped {new} malformed message{'s' if new > 1 else ''} on "
+            f"{self._node.resolve_topic_name(topic)}: {reason}"
+        )
+
+
+def check_command(values: Sequence[float], stage: int) -> str | None:
+    """Why a delay command cannot be used, or None when it can."""
+    if len(values) != stage:
+        return f"expected {stage} delays (one per stage), got {len(values)}"
+    bad = [i for i, v in enumerate(values) if not math.isfinite(v)]
+    if bad:
+        return f"non-finite delay at index {bad[0]} ({values[bad[0]]})"
+    return None
+
+
+def _stop_requested(signum, frame) -> None:
+    """Ctrl-C / SIGTERM: nothing to do here; rclpy's handler has shut the context down."""
+
+
+def run_node(make_node: Callable[[], Node], args=None) -> int:
+    """The ``main()`` of every node: init, spin, clean exit on Ctrl-C / SIGTERM.
+
+    A :class:`ParameterError` raised while building the node stops it before it spins, with the
+    message on stderr and exit code 2; a :class:`NodeFatalError` raised while spinning stops it
+    with the message and exit code 1. Returns the process exit code. BLAS runs on one thread
+    (:func:`~ops_contract.threads.limit_blas_threads`) unless the environment says otherwise.
+    """
+    limit_blas_threads()
+    # rclpy's own handlers (installed by init, for SIGINT and SIGTERM) shut the context down, and
+    # spin returns; they then call the Python handler found here. Python's default raises
+    # KeyboardInterrupt wherever the main thread is, even inside rclpy's Task constructor, which
+    # then printed "Exception ignored in Future.__del__ ... AttributeError" on exit (seen in CI).
+    for stop in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(stop, _stop_requested)
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = make_node()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ParameterError as exc:
+        print(f"[ERROR] invalid parameter: {exc}", file=sys.stderr, flush=True)
+        code = 2
+    except NodeFatalError as exc:
+        print(f"[ERROR] {exc}", file=sys.stderr, flush=True)
+        code = 1
+    except Exception:
+        if rclpy.ok():
+            raise
+        # Ctrl-C / SIGTERM shut the context down while rclpy was taking a message (it then raises
+        # from inside the executor): that is the requested exit, not an error.
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
