@@ -206,5 +206,5 @@ def test_switching_model_hands_over_to_its_holder_over_dds(procs, observer, tmp_
     )  # fmt: skip
     runner.wait_for(r"switching model: .*acquire acquires", timeout=120)
     runner.wait_for(r"step \d+: P_N/P_max = [\d.]+ \(acquiring policy acts", timeout=30)
-    runner.wait_for(r"\(holding policy acts; [1-9]\d* hand-overs\)", timeout=90)
+    runner.wait_for(r"\(holding policy acts; [1-9]\d* hand-overs since start\)", timeout=90)
     assert_no_traceback(runner.output)

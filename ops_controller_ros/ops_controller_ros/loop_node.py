@@ -126,6 +126,7 @@ class ControllerLoopNode(Node):
         self._ticks = None if self.rig_model is None else TickClock()
         self.late_steps = 0  # simulator steps that ran on old set-points (the command was late)
         self.revised_commands = 0  # commands replaced once the controller had thought further
+        self._logged_counts: dict[str, int] = {}  # each counter at the last progress line
 
         # Delays first: when several are ready the executor takes them in creation order. The
         # latched subscription gives the set-points at start (a lockstep simulator publishes
@@ -465,10 +466,22 @@ class ControllerLoopNode(Node):
                 f"{self.progress()}: no reading for {silent_s:.1f} s{self._why_silent()}"
             )
             return
-        late = ""
-        if self.late_steps:  # steps the simulator ran on old set-points, since the start
-            steps = "step" if self.late_steps == 1 else "steps"
-            late = f" ({self.late_steps} simulator {steps} passed before their command came)"
-        late += f" ({self.revised_commands} commands revised)" * bool(self.revised_commands)
         power = f"P_N/P_max = {self.ctrl.last_power:.4f}"
-        self.get_logger().info(f"{self.progress()}: {power}{self.progress_note()}{late}")
+        counts = self._counters_note()
+        self.get_logger().info(f"{self.progress()}: {power}{self.progress_note()}{counts}")
+
+    def _counters_note(self) -> str:
+        """The progress line's counters, each over the last log period and since the start:
+        simulator steps that ran on old set-points (their command came late) and commands
+        revised after the controller thought further."""
+        note = ""
+        period = f"{self._log_period:g} s"
+        for what, total in (
+            ("simulator steps ran before their command came", self.late_steps),
+            ("commands revised", self.revised_commands),
+        ):
+            if total:
+                recent = total - self._logged_counts.get(what, 0)
+                self._logged_counts[what] = total
+                note += f" ({what}: {recent} in the last {period}, {total} since start)"
+        return note

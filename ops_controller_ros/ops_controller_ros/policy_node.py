@@ -215,16 +215,17 @@ class PolicyNode(ControllerLoopNode):
         r = self._runner
         notes = []
         if isinstance(r, HeldRunner):
-            notes.append(f"{r.decisions} decisions")
+            notes.append(f"{r.decisions} decisions since start")
             r = r.runner
         if isinstance(r, ReacquireWatchdog):
-            notes.append(f"{r.kicks} re-acquiring kicks" + (", kicking" if r.kicking else ""))
+            kicking = ", kicking" if r.kicking else ""
+            notes.append(f"{r.kicks} re-acquiring kicks since start{kicking}")
             r = r.runner
         if isinstance(r, SwitchingRunner):
             acting = "holding policy acts" if r.holding else "acquiring policy acts"
             if r.holder_acts and not r.holding:
                 acting = "holding policy searches in turn"
-            notes.insert(0, f"{acting}; {r.switches} hand-overs")
+            notes.insert(0, f"{acting}; {r.switches} hand-overs since start")
         return f" ({'; '.join(notes)})" if notes else ""
 
 

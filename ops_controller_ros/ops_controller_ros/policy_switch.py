@@ -229,8 +229,9 @@ def _make_policy_runner(loaded: LoadedPolicy, num_envs: int | None):
     path = _acquire_path(loaded)
     if not (path / MODEL_FILE).is_file():
         raise PolicyLoadError(
-            f"switching model {loaded.path}: the acquiring policy {path / MODEL_FILE} is missing "
-            f"(scripts/make_switch_model.py writes it)"
+            f"switching model {loaded.path}: the acquiring policy {path / MODEL_FILE} is missing; "
+            "copy the acquiring model's folder there, or write the switching model again with "
+            f"`ops-bench switch-model --hold HOLD_DIR --acquire ACQUIRE_DIR --out {loaded.path}`"
         )
     acquire = load_policy(path)
     check_pair(loaded, acquire)

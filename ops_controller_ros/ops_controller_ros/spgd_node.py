@@ -81,7 +81,7 @@ class SpgdNode(ControllerLoopNode):
         )
 
     def progress(self) -> str:
-        restarts = f", {self.ctrl.restarts} restarts" if self.ctrl.restarts else ""
+        restarts = f", {self.ctrl.restarts} restarts since start" if self.ctrl.restarts else ""
         return f"iteration {self.ctrl.iterations}{restarts}"
 
 

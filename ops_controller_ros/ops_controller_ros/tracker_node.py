@@ -171,7 +171,8 @@ class TrackerNode(ControllerLoopNode):
             return ""
         # (no parentheses inside the line's own: readers match "(locked; ...): P_N/P_max")
         return (
-            f", knots {c.knots}, knot tests spread {c.knot_tests_spread} / cut {c.knot_tests_cut}"
+            f", since start: knots {c.knots}, knot tests spread {c.knot_tests_spread} / cut "
+            f"{c.knot_tests_cut}"
         )
 
     def _detector_note(self) -> str:

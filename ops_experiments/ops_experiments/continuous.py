@@ -13,8 +13,8 @@ From the readings P_N / P_max of one run (the one after the start, then one per 
   their number and lengths (readings);
 * ``worst_after_lock`` and ``worst``: the lowest reading after the first lock and overall.
 
-Pure numpy (no rclpy, no torch): ``scripts/bench_continuous_dds.py`` computes the same figures
-from the readings of the real nodes.
+Pure numpy (no rclpy, no torch): ``ops-bench continuous-dds`` computes the same figures from the
+readings of the real nodes.
 """
 
 from __future__ import annotations

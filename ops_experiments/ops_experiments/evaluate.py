@@ -20,6 +20,7 @@ the model's is refused with a clear error.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import sys
@@ -50,6 +51,19 @@ def _controller_names() -> tuple[str, ...]:
     return CONTROLLERS
 
 
+def controller_name(value: str) -> str:
+    """``--controller``'s value: a controller's name, or an error that names them and says where
+    a learned model goes (argparse exits with status 2)."""
+    names = _controller_names()
+    if value in names:
+        return value
+    raise argparse.ArgumentTypeError(
+        f"{value!r} is not a controller (one of: {', '.join(names)}); to evaluate a learned "
+        "model give its directory without --controller, e.g. "
+        "`ros2 run ops_gym_bridge evaluate models/n5_hard`"
+    )
+
+
 def build_parser():
     p = cli_args.make_parser(
         "evaluate",
@@ -58,7 +72,8 @@ def build_parser():
     p.add_argument("model", nargs="?", help="model directory (or its model.zip)")
     p.add_argument(
         "--controller",
-        choices=_controller_names(),
+        type=controller_name,
+        metavar="{" + ",".join(_controller_names()) + "}",
         help="evaluate this controller (ops_controller_ros.controllers) instead of a model",
     )
     p.add_argument(

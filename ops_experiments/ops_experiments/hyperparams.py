@@ -9,7 +9,7 @@ Sets (``train --hyperparams-set NAME``):
   environments, fewer gradient steps per environment step (SAC, TD3, and sb3-contrib's TQC and
   CrossQ); its ``defaults`` block names the algorithm, the number of environments and the
   observation memory that ``train`` uses unless the command line says otherwise (chosen by
-  measurement: ``scripts/bench_training.py``, docs/results.md).
+  measurement: ``ops-bench training``, docs/results.md).
 
 Beside the sets, in the same folder: ``profiles.yaml``, the benchmark's profiles (``benchmark
 --profile``: :func:`profiles`), and ``candidates.yaml``, the training bench's candidate set-ups

@@ -55,6 +55,15 @@ def test_controller_spgd_equals_the_spgd_synonym(tmp_path):
     assert a["splits"]["train"]["curve_mean"] == b["splits"]["train"]["curve_mean"]
 
 
+def test_an_unknown_controller_names_the_controllers_and_where_a_model_goes(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        evaluate.build_parser().parse_args(["--controller", "models/n5_hard"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "spgd, tracker" in err
+    assert "without --controller" in err and "evaluate models/n5_hard" in err
+
+
 def test_env_overrides_reach_the_simulator_not_the_controller(tmp_path, monkeypatch):
     from ops_experiments import rollouts
 
