@@ -27,9 +27,9 @@ delay's landscape repeats with the optical period), in steps of ``restart_step_f
 actuator's largest step; readings on the way are not used), and SPGD starts again there. The best
 plateau seen is remembered: a restart leaves from it. ``restart_below`` (0.6) sits above every
 side peak: none exceeds 1/3 behind the polarizer or 1/2 with both ports (N = 2-6, gradient
-ascent from random starts: ``ops-bench side-peaks``). A plateau above it is the main peak,
-lagging hard mode's drift; with 0.9 SPGD restarted such plateaus and threw the lock away (hard,
-N = 5: 0.357 -> 0.418 with 0.6, 2,000 episodes; docs/results/spgd/index.md).
+ascent from random starts: ``ops-bench side-peaks`` at commit 367a582). A plateau above it is
+the main peak, lagging hard mode's drift; with 0.9 SPGD restarted such plateaus and threw the
+lock away (hard, N = 5: 0.357 -> 0.418 with 0.6, 2,000 episodes; docs/results/spgd/index.md).
 
 The class is a state machine with no notion of time or transport: ``command()`` gives
 the set-points to apply next, ``observe(power)`` the reading they produced. The ROS node and the

@@ -5,12 +5,28 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ops_bench.latency_check import run
 from ops_contract.config import make_config
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
 from ops_controller_ros.tracker.latency_check import pair_readings
 from ops_sim_ros.simulation import BatchedSimulation
+
+
+def run(rig: int, told: int, mode: str, seed: int, steps: int = 150, params=None):
+    """A rig of latency ``rig`` and a tracker told ``told`` (``params``: TrackerParams or the
+    defaults), in process: (tracker, reading at which it took a latency or None, every
+    reading's P_N/P_max)."""
+    sim = BatchedSimulation(make_config(5, mode, "test", latency_steps=rig), 1, seed=seed)
+    tracker = PhaseTracker(make_config(5, mode, "test", latency_steps=told), params, seed=seed)
+    sim.reset(seed=seed)
+    taken_at, powers = None, []
+    for k in range(steps):
+        res = sim.step_setpoints(next_command(tracker)[None])
+        tracker.observe(float(res.power[0]), res.pulse_energies[0])
+        powers.append(float(res.power[0]))
+        if tracker.latency_changes and taken_at is None:
+            taken_at = k + 1
+    return tracker, taken_at, np.array(powers)
 
 
 def test_readings_pair_with_the_command_acting_that_many_steps_before():

@@ -133,7 +133,8 @@ class KnotTest:
         detector. A clean one takes the test as far as it got (extreme, no detector noise, 15 %
         of the commands late, the node's 4 ms: 87.1 / 90.8 % of readings >= 0.95 with 55 / 41
         losses, spread 83.7 / 81.8 % with 124 each; ``ops-bench tracker-late --mode extreme
-        --realism ideal --seeds 1002 1003``): its knots matter a reading sooner."""
+        --realism ideal --seeds 1002 1003`` at commit 321ffa4): its knots matter a reading
+        sooner."""
         return deadline is not None and self.params.slice_knot_test and self._noisy()
 
     def _start_knot_run(self, predicted, u, y, age, ratio=False, spread=False) -> KnotRun:

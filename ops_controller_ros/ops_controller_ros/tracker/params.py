@@ -250,7 +250,8 @@ class TrackerParams:
     # try); a hypothesis is taken if its whole cost plus knot_penalty is the lowest. The prior
     # keeps the hypotheses off the mirror images of a change (a path that reads the same with
     # the change's sign turned, at twice its size): extreme, seeds 1000 and 1001 x 3000 steps
-    # of `ops-bench tracker-knots`, 96.0-96.5 % locked with 0.03, 97.6-97.8 % with 0.015.
+    # of `ops-bench tracker-knots` at commit 51e857d, 96.0-96.5 % locked with 0.03, 97.6-97.8 %
+    # with 0.015.
     knot_tolerance: float = _declare(
         1e-6, "residual of a tracking fit that asks for the knot test", 0.0, low_open=True
     )

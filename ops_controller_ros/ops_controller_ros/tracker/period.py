@@ -83,7 +83,8 @@ class PeriodCalibration:
         r = float(np.clip(r, -MAX_HOP_RATIO, MAX_HOP_RATIO))
         # A gain that falls with the moves made (an average of the measurements, not the last
         # few): with a constant gain the estimate random-walked with its measurements' noise
-        # (docs/tracker.md, "Over DDS"; `ops-bench tracker-wavelength` measures it).
+        # (docs/tracker.md, "Over DDS"; `ops-bench tracker-wavelength` at commit 51e857d
+        # measured it).
         share = max(HOP_GAIN_MOVES / (HOP_GAIN_MOVES + self.hops), HOP_GAIN_FLOOR)
         self.calibration.wavelength_nm /= 1.0 + self.params.hop_gain * share * r
         self._adopt_optics()

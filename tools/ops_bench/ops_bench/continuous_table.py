@@ -1,4 +1,4 @@
-"""The continuous-operation table over DDS beside the in-process one (issue 20).
+"""The continuous-operation table over DDS beside the in-process one.
 
 Reads the JSON files `ops-bench continuous-dds --out` wrote (default
 docs/results/continuous_dds/CELL.json, CELL = tracker_MODE_600s, model_NAME_600s (NAME: the

@@ -252,7 +252,7 @@ def run_controller(name: str, args, tmp: Path) -> dict:
             )
             # --nice: the loop's processes (simulator and controller) get that priority, and so
             # does the relay: it stands in for the network, which takes no CPU of the hosts
-            # (with the relay at normal priority, a niced loop starved it: issue 21).
+            # (with the relay at normal priority, a niced loop starved it).
             prio = ["nice", "-n", str(args.nice)] if args.nice else []
             hosts.a.start(group, [*prio, *sim], name="sim", env=env).wait_for("stage=", 120)
             rec = hosts.a.start(group, [*SELF, "--record"], name="rec", env=env)

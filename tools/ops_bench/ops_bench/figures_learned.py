@@ -1,4 +1,4 @@
-"""Figure of the shipped learned agents (issue 11): the periodic test evaluation (final
+"""Figure of the shipped learned agents: the periodic test evaluation (final
 P_N / P_max, 20 episodes) against minutes of training, one line per model folder under models/,
 from their learning.csv (written by `ops-bench ship-model`), with the paper's TD3 testing figures
 at N = 5 for reference.
@@ -26,7 +26,7 @@ from ops_bench.reference_actions import model_realism
 
 MODES = ("easy", "medium", "hard")
 PAPER_TD3_TEST_N5 = {m: PAPER_TABLE1[(m, "test")]["td3"][0] for m in MODES}  # N = 5
-GOALS_N5 = {"easy": 0.99, "medium": 0.97, "hard": 0.95}  # issue 11
+GOALS_N5 = {"easy": 0.99, "medium": 0.97, "hard": 0.95}  # the learned agents' goals, N = 5
 ABLATIONS = REPO / "docs" / "results" / "issue11"  # runs kept as curves only
 TABLE1_RUNS = REPO / "docs" / "results" / "n5_quick" / "runs"
 BEGIN, END = "<!-- table: make_learned_figures.py -->", "<!-- end of table -->"
@@ -56,7 +56,7 @@ def table_rows(models: list[dict]) -> list[str]:
     rows = [
         "| model | N, mode | memory k | training reward | training run (one core) "
         "| env steps of the kept model | held-out test final P_N / P_max (mean ± std over seeds) "
-        "| worst episode | episodes | issue 11 goal | paper's TD3 (N = 5, its detector) |",
+        "| worst episode | episodes | goal | paper's TD3 (N = 5, its detector) |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m in models:
@@ -154,14 +154,14 @@ def main(argv=None) -> int:
         ax.axhline(PAPER_TD3_TEST_N5[mode], color="tab:blue", lw=0.9, ls="--")
         ax.text(0.5, PAPER_TD3_TEST_N5[mode] - 0.035, "paper TD3, 300k steps", fontsize=7)
         ax.axhline(GOALS_N5[mode], color="tab:green", lw=0.9, ls="--")
-        ax.text(0.5, GOALS_N5[mode] + 0.008, "issue 11 goal", fontsize=7)
+        ax.text(0.5, GOALS_N5[mode] + 0.008, "goal", fontsize=7)
         ax.set_title(f"N = 5, {mode} mode (testing environment)")
         ax.set_xlabel("training time (minutes, one core)")
         ax.set_ylim(0, 1.03)
         ax.legend(fontsize=6.5, loc="lower right")
     axes[0].set_ylabel("final P_N / P_max (periodic test evaluation, 20 episodes)")
     fig.suptitle(
-        "Learned agents against training time (issue 11); black: shipped models (dashed: "
+        "Learned agents against training time; black: shipped models (dashed: "
         "trained and tested on a rig that is not ideal)"
     )
     fig.tight_layout()

@@ -166,7 +166,7 @@ def modes(out: pathlib.Path, stage: int = 5) -> None:
 
 def hysteresis(out: pathlib.Path) -> None:
     """The delay line's position against its set-point over sweeps of the whole travel and of a
-    fifth of it, for the actuator_hysteresis of docs/physics.md (issue 30)."""
+    fifth of it, for the actuator_hysteresis of docs/physics.md."""
     fig, ax = plt.subplots(figsize=(5.2, 4.4))
     for fraction, colour in ((0.05, "tab:blue"), (0.12, "tab:red")):
         cfg = make_config(stage=1, actuator_hysteresis=fraction)

@@ -5,7 +5,7 @@ work per step), plus peak memory. Writes its table into docs/benchmarks.md (own 
 Usage: OPENBLAS_NUM_THREADS=1 PYTHONPATH=ops_sim_ros ops-bench physics
        [--batch 1024] [--stages 1,2,...,8] [--repeats 5] [--no-write]
 The machine is shared: every number is the best of --repeats timed runs, and the section records
-the 1-minute load average and whether each goal of issue 3 was met in this run.
+the 1-minute load average and whether each speed goal was met in this run.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The results pages, written from the stored runs (issue 33): ``ops-bench results``.
+"""The results pages, written from the stored runs: ``ops-bench results``.
 
 One page per topic, ``docs/results/<topic>/index.md``, each made of the topic's hand-kept text
 (``docs/results/<topic>/notes.md``, copied verbatim) in which a directive line

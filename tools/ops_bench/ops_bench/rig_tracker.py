@@ -1,4 +1,4 @@
-"""The rig and the tracker over DDS for a long run, in the simulated lab (issue 31's goal:
+"""The rig and the tracker over DDS for a long run, in the simulated lab (the rig's goal:
 >= 99 % of readings >= 0.95 over 10 min, N = 5, hard, after `calibrate`).
 
 Starts `simlab` (its optics stepping at --rate-hz, the YAML's rate), `calibrate`, `rig` and

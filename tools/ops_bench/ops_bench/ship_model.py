@@ -1,4 +1,4 @@
-"""Ship a trained run as a ready-to-run model folder (issue 11): the best evaluated model of
+"""Ship a trained run as a ready-to-run model folder: the best evaluated model of
 ``train --eval-freq`` (RUN/best: model.zip + metadata.json, no replay buffer), its learning curve
 (the periodic test evaluations against training time, from RUN/logs/progress*.csv: every
 resumed part) and a fresh

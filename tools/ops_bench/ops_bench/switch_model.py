@@ -1,4 +1,4 @@
-"""Make a switching model (issue 20): one learned policy finds the stack, another holds it.
+"""Make a switching model: one learned policy finds the stack, another holds it.
 
 Writes DEST with the holding policy's model.zip and metadata.json (plus a ``switch`` entry) and
 the acquiring policy's model directory as DEST/acquire (ops_controller_ros.policy_switch). The

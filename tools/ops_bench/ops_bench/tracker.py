@@ -1,4 +1,4 @@
-"""The tracker's goals (issue 10): N = 5, testing environment, 200-step episodes, seeds x episodes
+"""The tracker's goals: N = 5, testing environment, 200-step episodes, seeds x episodes
 per row; final P_N / P_max per mode and detector, steps from a random medium start to 0.95, model
 mismatch the controller is not told of, and compute per control step for N = 1..7.
 
@@ -32,7 +32,7 @@ MISMATCH = {
     "wavelength +1 %": dict(wavelength_nm=1040.3),
     "jitter 5x": dict(jitter_sigma_cycles=0.005),
 }
-#: Issue 20's mismatch rows (extreme mode, the tracker not told): a real rig is always off its
+#: The mismatch rows (extreme mode, the tracker not told): a real rig is always off its
 #: model. Each row is measured in medium and extreme mode with the worst episode beside the mean.
 MISMATCH_ISSUE20 = {
     "none": {},
@@ -106,7 +106,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument(
         "--mismatch",
         action="store_true",
-        help="only issue 20's mismatch table (its own section), on seeds from --first-seed",
+        help="only the mismatch table (its own section), on seeds from --first-seed",
     )
     ap.add_argument("--first-seed", type=int, default=0, help="first evaluation seed")
     ap.add_argument(
@@ -171,7 +171,7 @@ def main(argv=None) -> int:
         "Compute per control step (`command` + `observe`, medium mode, 3 episodes of 60 steps "
         "from random starts per row), ms, with the global search all in one reading "
         "(`step_budget_ms` 0, the in-process default) and spread over readings at about 4 ms "
-        "each (the `tracker` node's default until issue 33); the spread search costs control "
+        "each (the `tracker` node's earlier default); the spread search costs control "
         "steps to lock:",
         "",
         "| N | step_budget_ms | median | 95th percentile | max | median steps to 0.95 |",
@@ -188,7 +188,7 @@ def main(argv=None) -> int:
 
 
 def mismatch_table(args, cmd: str) -> int:
-    """Issue 20's mismatch rows in medium and extreme mode: mean ± std, worst episode and the
+    """The mismatch rows in medium and extreme mode: mean ± std, worst episode and the
     episodes >= 0.95 at the end, polarizer detector, seeds from ``--first-seed``."""
     n_ep = args.seeds * args.episodes
     lines = [
@@ -198,7 +198,7 @@ def mismatch_table(args, cmd: str) -> int:
         f"seeds {args.first_seed}..{args.first_seed + args.seeds - 1} x {args.episodes} episodes "
         f"= {n_ep} per cell, polarizer detector; the simulator runs the mismatch, the tracker its "
         "nominal model and its online calibration; final P_N / P_max mean ± std, worst, "
-        "episodes >= 0.95 at the end). Goal (issue 20): >= 0.95 in extreme mode.",
+        "episodes >= 0.95 at the end). Goal: >= 0.95 in extreme mode.",
         "",
         "| mismatch | medium | medium worst | extreme | extreme worst | extreme >= 0.95 |",
         "|---|---|---|---|---|---|",

@@ -1,4 +1,4 @@
-"""Training speed and learning against wall time of candidate hyper-parameter sets (issue 11).
+"""Training speed and learning against wall time of candidate hyper-parameter sets.
 
 For each candidate (an algorithm, a hyper-parameter set of ``ops_experiments/yaml``, a
 number of environments, an observation memory) this trains in-process, exactly as ``ros2 run

@@ -29,7 +29,8 @@ def test_repo_is_the_checkout_the_package_lives_in():
 def test_every_module_has_a_subcommand_or_is_a_helper():
     modules = {m.name for m in pkgutil.iter_modules([str(PACKAGE)])}
     tools = {t.module for t in [*cli.TOOLS.values(), *cli.FIGURES.values()] if t.module}
-    helpers = {"cli", "__main__", "docs", "hosts", "observer", "processes", "ray_cluster", "study"}
+    helpers = {"cli", "__main__", "docs", "hosts", "observer", "processes", "ray_cluster"}
+    helpers |= {"tracker_knots"}  # tracker-compute's loop
     assert tools <= modules
     assert modules - tools == helpers
 
@@ -88,11 +89,11 @@ def test_a_tool_sees_its_own_command_line(monkeypatch):
         seen["argv"], seen["sys.argv"] = argv, list(sys.argv)
         return 3
 
-    monkeypatch.setattr(importlib.import_module("ops_bench.latency_check"), "main", fake_main)
-    assert cli.main(["latency-check", "--seeds", "1"]) == 3
+    monkeypatch.setattr(importlib.import_module("ops_bench.first_run"), "main", fake_main)
+    assert cli.main(["first-run", "--seeds", "1"]) == 3
     assert seen == {
         "argv": ["--seeds", "1"],
-        "sys.argv": ["ops-bench latency-check", "--seeds", "1"],
+        "sys.argv": ["ops-bench first-run", "--seeds", "1"],
     }
 
 
@@ -163,3 +164,39 @@ def test_sizes_and_no_path_hacks():
         for node in ast.walk(ast.parse(text)):
             if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
                 assert node.end_lineno - node.lineno < 80, f"{path.name}: {node.name}"
+
+
+def test_first_run_starts_spgd_as_the_readme_does_and_the_tracker_with_its_seed():
+    from ops_bench.first_run import controller_command
+
+    assert controller_command("spgd", 3) == ["ros2", "run", "ops_controller_ros", "spgd"]
+    tracker = controller_command("tracker", 3)
+    assert tracker[:4] == ["ros2", "run", "ops_controller_ros", "tracker"]
+    assert tracker[-2:] == ["-p", "seed:=3"]
+
+
+def test_first_run_writes_its_controllers_section_and_counts_the_goal(monkeypatch):
+    import numpy as np
+
+    from ops_bench.first_run import SECTIONS, parse_args, section
+
+    args = parse_args(["--controller", "tracker", "--stage", "5", "--echo", "none"])
+    monkeypatch.setattr(sys, "argv", ["ops-bench first-run", "--controller", "tracker"])
+    text = section(args, [0, 1, 2], np.array([2.0, 12.0, np.inf]))
+    assert text.startswith(SECTIONS["tracker"] + "\n")
+    assert "**1 of 3 seeds within 10 s**" in text and "`sim -p stage:=5`" in text
+    assert "topic echo" not in text
+    assert "`ops-bench first-run --controller tracker`" in text
+    args = parse_args([])
+    assert (args.controller, args.stage, args.echo) == ("spgd", 3, "power")
+    assert "`ros2 topic echo /ops/power`" in section(args, [7], np.array([1.0]))
+
+
+@pytest.mark.parametrize("argv", [["--controller", "policy"], ["--seeds", "0"]])
+def test_first_run_refuses_bad_options(argv, capsys):
+    from ops_bench.first_run import parse_args
+
+    with pytest.raises(SystemExit) as done:
+        parse_args(argv)
+    assert done.value.code == 2
+    assert ("--controller" if "--controller" in argv else "--seeds") in capsys.readouterr().err

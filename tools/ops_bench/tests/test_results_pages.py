@@ -1,4 +1,4 @@
-"""The results pages are what ``ops-bench results`` writes from the stored runs (issue 33)."""
+"""The results pages are what ``ops-bench results`` writes from the stored runs."""
 
 from __future__ import annotations
 
