@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The main job, headless: the simulator (N = 5, easy mode) and the SPGD-PID controller close the
 # loop over DDS for a few seconds while the monitor records the trace before and after.
-# Output: runs/demo/monitor.png (before / after / P_N history) and the controller's log lines.
+# Output: runs/demo/monitor.png (before / after / P_N history, the controller's start marked)
+# and the controller's log lines. The monitor stops first, so "after" is a controlled trace.
 set -eo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 # shellcheck disable=SC1091
@@ -28,7 +29,9 @@ source scripts/demo_lib.sh  # wait_for_line (the working directory is the root)
 echo "[demo] ROS_DOMAIN_ID=$ROS_DOMAIN_ID; starting the simulator (stage 5, easy mode)"
 ros2 run ops_sim_ros sim --ros-args -p stage:=5 -p mode:=easy -p seed:=7 >"$OUT/sim.log" 2>&1 &
 pids+=($!)
-ros2 run ops_sim_ros monitor --ros-args -p save:="$OUT/monitor.png" >"$OUT/monitor.log" 2>&1 &
+ros2 run ops_sim_ros monitor --ros-args -p save:="$OUT/monitor.png" \
+  -p title:="SPGD-PID on the simulator (N = 5, easy mode, seed 7)" >"$OUT/monitor.log" 2>&1 &
+monitor_pid=$!
 pids+=($!)
 wait_for_line "$OUT/monitor.log" "first trace received" 30
 grep -o "first trace received.*" "$OUT/monitor.log" | sed 's/^/[demo] before control: /'
@@ -44,6 +47,8 @@ echo "[demo] ..."
 grep -o "iteration .*" "$OUT/spgd.log" | tail -n 3 | sed "s/^/[demo] /"
 echo "[demo] (all lines in $OUT/spgd.log)"
 
+# The picture first, while the controller still holds the stack; then the rest.
+kill -INT "$monitor_pid" && wait "$monitor_pid" || true
 stop_all
 trap - EXIT
 cat "$OUT/monitor.log" | grep -o "wrote .*" | sed 's/^/[demo] /'

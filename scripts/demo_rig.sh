@@ -3,7 +3,8 @@
 # hard mode, a fixed seed) with its scope over SCPI/TCP and piezo drives on pseudo-terminals,
 # `calibrate`, the `rig` node and the `tracker` (its nominal optics from the rig YAML) close the
 # loop over DDS for DEMO_SECONDS while the monitor records the trace and P_N/P_max.
-# Output: runs/demo_rig/monitor.png (first trace / latest trace / P_N history), rig.yaml and logs.
+# Output: runs/demo_rig/monitor.png (first trace / latest trace / P_N history, the tracker's start
+# marked), rig.yaml and logs. The monitor stops first, so "after" is a controlled trace.
 set -eo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 # shellcheck disable=SC1091
@@ -57,7 +58,10 @@ wait_for_line "$OUT/rig.log" "scope connected" 30
 # A history as long as the run, written at the end (a redraw every few seconds costs the loop).
 history=$((SECONDS_TO_RUN * ${RATE_HZ%.*} * 2 + 100))
 ros2 run ops_sim_ros monitor --ros-args -p save:="$OUT/monitor.png" -p history:="$history" \
-  -p png_period_s:=3600.0 >"$OUT/monitor.log" 2>&1 &
+  -p png_period_s:=3600.0 \
+  -p title:="tracker on the simulated lab (N = 5, hard mode, seed $SEED, ${RATE_HZ} Hz)" \
+  >"$OUT/monitor.log" 2>&1 &
+monitor_pid=$!
 pids+=($!)
 wait_for_line "$OUT/monitor.log" "first trace received" 30
 grep -o "first trace received.*" "$OUT/monitor.log" | sed "s/^/[demo-rig] before the tracker (drifted since calibrate): /"
@@ -72,6 +76,8 @@ sleep "$SECONDS_TO_RUN"
 grep -o "reading [0-9]* (.*" "$OUT/tracker.log" | tail -n 3 | sed "s/^/[demo-rig] /"
 grep -o "true P_N/P_max.*" "$OUT/simlab.log" | tail -n 1 | sed "s/^/[demo-rig] simlab's /"
 
+# The picture first, while the tracker still holds the stack; then the rest in reverse order.
+kill -INT "$monitor_pid" && wait "$monitor_pid" || true
 stop_all
 trap - EXIT
 grep -o "parked the piezos.*" "$OUT/rig.log" | sed 's/^/[demo-rig] rig: /' || true

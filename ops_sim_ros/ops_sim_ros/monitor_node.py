@@ -4,9 +4,15 @@ The paper's "real-time rendering of the pulse intensity to monitor the controlli
 With a display it opens a window; ``-p save:=FILE`` records instead (headless):
 
 - ``.png``: the first trace received ("before"), the latest ("after") and the power history,
-  rewritten every ``png_period_s`` and on exit;
+  rewritten every ``png_period_s`` and on exit (stop the monitor before the controller, so that
+  the last "after" is a controlled one);
 - ``.gif`` / ``.mp4``: one frame every ``frame_period_s`` (like the paper's Figure 17 sequence),
   written on exit (``.mp4`` needs ffmpeg on PATH).
+
+The power history's x axis is the time since the monitor's first reading, from the publisher's
+timestamps (the simulator's or rig's clock, so a frame drawn meanwhile does not bunch the
+readings); a dashed line marks the first command on ``ops/delay_cmd``, where the controller
+starts. ``title`` heads the figure (the demos give the controller, N, mode and seed).
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from ops_contract.node_params import ParamSpec, declare_all
 from ops_contract.ros_interface import (
     QOS_EVERY_READING,
     QOS_RELIABLE,
+    TOPIC_DELAY_CMD,
     TOPIC_INTENSITY,
     TOPIC_POWER,
     MessageGuard,
@@ -36,6 +43,7 @@ from std_msgs.msg import Float32, Float32MultiArray
 SAVE_FORMATS = (".png", ".gif", ".mp4")
 PARAMS = [
     ParamSpec("save", "", "record to this file (.png, .gif or .mp4) instead of a window"),
+    ParamSpec("title", "", "the figure's title (e.g. the controller, N, mode and seed)"),
     ParamSpec("history", 2000, "power readings kept in the history plot", low=10, high=10**7),
     ParamSpec(
         "frame_period_s",
@@ -69,6 +77,12 @@ PARAMS = [
 ]
 
 
+def publisher_time(info) -> float:
+    """A message's time (s): the publisher's timestamp from its MessageInfo, else now."""
+    stamp = info.get("source_timestamp") if isinstance(info, dict) else None
+    return stamp * 1e-9 if isinstance(stamp, int) and stamp > 0 else time.time()
+
+
 class MonitorNode(Node):
     def __init__(self):
         super().__init__("ops_monitor")
@@ -91,7 +105,11 @@ class MonitorNode(Node):
             )
         self._spacing_fs = v["pulse_spacing_ns"] * 1e6
         self._frame_period = v["frame_period_s"]
+        self._title = v["title"]
         self._powers: deque[float] = deque(maxlen=v["history"])
+        self._stamps: deque[float] = deque(maxlen=v["history"])  # each reading's time (s)
+        self._first_stamp: float | None = None  # the first reading's: the history's zero
+        self._control_stamp: float | None = None  # the first command's on ops/delay_cmd
         self._frames: deque[np.ndarray] = deque(maxlen=v["max_frames"])
         self._first: tuple[np.ndarray, int, float] | None = None
         self._latest: tuple[np.ndarray, int] | None = None
@@ -105,6 +123,10 @@ class MonitorNode(Node):
         # Every reading counts (the history plot, the readings figure): a deep queue, so drawing a
         # frame does not lose the readings that arrive meanwhile.
         self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_EVERY_READING)
+        # The controller's first command marks the history; then the subscription goes.
+        self._cmd_sub = self.create_subscription(
+            Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE
+        )
         self.create_timer(self._frame_period, self._on_frame)
         if self._save is not None and self._save.suffix.lower() == ".png":
             self.create_timer(v["png_period_s"], self._write_png)
@@ -119,15 +141,30 @@ class MonitorNode(Node):
         self._latest = trace
         self._dirty = True
 
-    def _on_power(self, msg: Float32):
+    def _on_power(self, msg: Float32, info):
+        # (``info`` without a default: rclpy passes the MessageInfo only to a callback that
+        # cannot be called with the message alone)
         power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
         if power is None:
             return
+        stamp = publisher_time(info)
+        if self._first_stamp is None:
+            self._first_stamp = stamp
+        self._stamps.append(stamp)
         self._powers.append(power)
         self._readings += 1
         if self._first is None and self._latest is not None:
             self._first = (*self._latest, power)
             self.get_logger().info(f"first trace received: P_N/P_max = {power:.4f}")
+
+    def _on_command(self, msg: Float32MultiArray, info):
+        if self._control_stamp is not None:
+            return
+        self._control_stamp = publisher_time(info)
+        self.get_logger().info(
+            f"the controller's first command came after {self._readings} readings"
+        )
+        self.destroy_subscription(self._cmd_sub)
 
     # ------------------------------------------------------------------ drawing
     def _draw(self, fig):
@@ -160,15 +197,30 @@ class MonitorNode(Node):
                 power,
                 title="after" if cols == 2 else "output trace",
             )
-        ax = fig.add_subplot(grid[1, :])
-        history = np.asarray(self._powers)
-        start = self._readings - history.size
-        ax.plot(np.arange(start, self._readings), history, color="tab:blue", linewidth=1.0)
+        self._draw_history(fig.add_subplot(grid[1, :]))
+        if self._title:
+            fig.suptitle(self._title, fontsize=11)
+        fig.tight_layout()
+
+    def _draw_history(self, ax):
+        """P_N / P_max of every reading kept, against the time since the first reading, with
+        the controller's start marked."""
+        if self._powers:
+            t = np.asarray(self._stamps) - self._first_stamp
+            ax.plot(t, np.asarray(self._powers), color="tab:blue", linewidth=1.0)
+        if self._control_stamp is not None:
+            ax.axvline(
+                self._control_stamp - (self._first_stamp or self._control_stamp),
+                color="tab:green",
+                linestyle="--",
+                linewidth=1.2,
+                label="controller starts (its first command)",
+            )
+            ax.legend(loc="lower right", fontsize=9)
         ax.set_ylim(0.0, 1.05)
-        ax.set_xlabel("step")
+        ax.set_xlabel(f"time since the monitor's first reading (s; {self._readings} readings)")
         ax.set_ylabel("P_N / P_max")
         ax.grid(alpha=0.3)
-        fig.tight_layout()
 
     def _offscreen_figure(self, size):
         if self._figure is None:
