@@ -35,7 +35,7 @@ The class is a state machine with no notion of time or transport: ``command()`` 
 the set-points to apply next, ``observe(power)`` the reading they produced. The ROS node and the
 in-process evaluation both drive it the same way.
 
-Latency (``latency`` > 0, the rig's ``latency_steps``; issue 30): a command acts that many steps
+Latency (``latency`` > 0, the rig's ``latency_steps``): a command acts that many steps
 after the reading it answered, so the reading after a command was made by the one ``latency``
 commands before. SPGD then keeps a perturbation in flight every step, files each reading under
 the perturbation that made it (J+ or J- of which pair), and updates the set-points when a
@@ -54,54 +54,81 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .param_fields import check, declare
+
 #: ``SpgdParams.recovery``: "restart" leaves a side peak by random restarts; "none": the paper's.
 RECOVERIES = ("restart", "none")
 
 
 @dataclass(frozen=True)
 class SpgdParams:
-    gain: float = 0.05  # fs^2 per unit of normalized power: e = gain * dP/ddelay
-    perturbation_fs: float = 0.03  # dither amplitude a per stage (about 1 % of a 1030 nm cycle)
-    kp: float = 1.0
-    ki: float = 0.0
-    kd: float = 0.0
-    momentum: float = 0.0  # 0 <= m < 1
-    max_update_fs: float = 0.5  # largest set-point change per iteration
-    integral_limit_fs: float = 5.0  # anti-windup bound of the integral term
-    normalized: bool = True  # divide the gradient by the power (False: the paper's)
-    normalize_floor: float = 0.02  # ... by at least this power
-    recovery: str = "restart"  # "restart": leave a side peak; "none": the paper's SPGD-PID
+    """SPGD-PID's parameters, each declared once with its meaning and range: the dataclass
+    checks itself against them, and the ``spgd`` node declares each field as a parameter with
+    the same default, description and range (``spgd_node.PARAMS``,
+    :func:`~ops_controller_ros.param_fields.param_specs`)."""
+
+    gain: float = declare(
+        0.05,
+        "SPGD gain: fs^2 per unit of normalized power (e = gain * dP/ddelay)",
+        0.0,
+        1e6,
+        low_open=True,
+    )
+    perturbation_fs: float = declare(
+        0.03,
+        "dither amplitude per stage, fs (about 1 % of a 1030 nm cycle)",
+        0.0,
+        1e3,
+        low_open=True,
+    )
+    kp: float = declare(1.0, "PID proportional gain on the SPGD update", -1e6, 1e6)
+    ki: float = declare(0.0, "PID integral gain", -1e6, 1e6)
+    kd: float = declare(0.0, "PID derivative gain", -1e6, 1e6)
+    momentum: float = declare(0.0, "momentum of the update (below 1)", 0.0, 0.999)
+    max_update_fs: float = declare(
+        0.5, "largest set-point change per iteration, fs", 0.0, 1e3, low_open=True
+    )
+    integral_limit_fs: float = declare(
+        5.0, "anti-windup bound of the PID's integral term, fs", 0.0, 1e3
+    )
+    normalized: bool = declare(True, "divide the gradient by the power (false: the paper's SPGD)")
+    normalize_floor: float = declare(
+        0.02, "smallest power the gradient is divided by", 0.0, 1.0, low_open=True
+    )
+    recovery: str = declare(
+        "restart",
+        "restart: leave a side peak by random restarts; none: the paper's",
+        choices=RECOVERIES,
+    )
     # restart when P_N/P_max is still below this (above every side peak: module docstring) ...
-    restart_below: float = 0.6
-    restart_after: int = 10  # ... and flat over this many iterations since the (re)start ...
-    restart_flat: float = 0.1  # ... within this fraction of its level (a plateau, not a climb)
-    # ... a window longer by this many iterations per step of latency (a climb shows late)
-    restart_after_per_latency: float = 2.5
-    restart_range_fs: float = 3.6  # width of a restart's random offset (a 1030 nm cycle: 3.44 fs)
-    restart_step_fs: float = 0.06  # set-point change per reading on the way to it
+    restart_below: float = declare(
+        0.6, "restart while P_N/P_max is below this (above every side peak) ...", 0.0, 1.0
+    )
+    restart_after: int = declare(
+        10, "... and flat over this many iterations since the last", 1, 100000
+    )
+    restart_flat: float = declare(
+        0.1, "... within this fraction of its level (a plateau, not a climb)", 0.0, 1.0
+    )
+    restart_after_per_latency: float = declare(
+        2.5,
+        "... a window longer by this many iterations per step of the rig's latency",
+        0.0,
+        1e3,
+    )
+    restart_range_fs: float = declare(
+        3.6, "width of a restart's random offset, fs (one 1030 nm cycle: 3.44 fs)", 0.0, 1e3
+    )
+    restart_step_fs: float = declare(
+        0.06,
+        "set-point change per reading on the way to a restart, fs",
+        0.0,
+        1e3,
+        low_open=True,
+    )
 
     def __post_init__(self):
-        checks = (
-            ("gain", self.gain > 0, "> 0"),
-            ("perturbation_fs", self.perturbation_fs > 0, "> 0"),
-            ("momentum", 0.0 <= self.momentum < 1.0, "in [0, 1)"),
-            ("max_update_fs", self.max_update_fs > 0, "> 0"),
-            ("integral_limit_fs", self.integral_limit_fs >= 0, ">= 0"),
-            ("normalize_floor", 0.0 < self.normalize_floor <= 1.0, "in (0, 1]"),
-            ("recovery", self.recovery in RECOVERIES, f"one of {', '.join(RECOVERIES)}"),
-            ("restart_below", 0.0 <= self.restart_below <= 1.0, "in [0, 1]"),
-            ("restart_after", self.restart_after >= 1, ">= 1"),
-            ("restart_flat", 0.0 <= self.restart_flat <= 1.0, "in [0, 1]"),
-            ("restart_after_per_latency", self.restart_after_per_latency >= 0, ">= 0"),
-            ("restart_range_fs", self.restart_range_fs >= 0, ">= 0"),
-            ("restart_step_fs", self.restart_step_fs > 0, "> 0"),
-        )
-        for name, ok, allowed in checks:
-            if not ok:
-                raise ValueError(f"{name} must be {allowed} (got {getattr(self, name)!r})")
-        for name in ("kp", "ki", "kd", "restart_range_fs", "restart_step_fs"):
-            if not np.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be finite (got {getattr(self, name)!r})")
+        check(self)
 
     def to_dict(self) -> dict:
         return asdict(self)
