@@ -1,16 +1,16 @@
 """The loop over a lossy link: the simulator on host A, SPGD on host B, joined through
 ops_bench.relay (ops_bench.hosts.RelayedHosts), which drops frames and cuts the link.
 
-With 20 % of the frames lost each way the controller keeps at least a fifth of its clean-link
-pace (a lost command or reading is re-sent after a few measured round trips, not after
-``timeout_s``: at 1 s per loss it managed a few iterations per second, under a twentieth; with
-re-sends it keeps about two thirds on an idle machine and a third on a busy one) and holds its
-lock; after a 3 s outage it steps again within seconds, and nothing exits.
-The tracker holds hard mode through 20 % loss (issue 34: it fell to 0.05 and no test sent a
-lost packet). The heavy schedules (5 / 20 % loss for minutes, 30 s outages, load, three
-controllers) are in `ops-bench faults`. Links that stay dead while discovery goes on (the relay's
-stuck-links fault) are ended by the Gymnasium bridge replacing its DDS participant. Needs root
-and `ip`; skipped with the reason otherwise.
+With 20 % of the frames lost each way the controller keeps at least a fifth of its clean-link pace
+(a lost command or reading is re-sent after a few measured round trips, not after ``timeout_s``: at
+1 s per loss it managed a few iterations per second, under a twentieth; with re-sends it keeps about
+two thirds on an idle machine and a third on a busy one) and holds its lock; after a 3 s outage it
+steps again within seconds, and nothing exits. The tracker holds hard mode through 20 % loss (a loop
+that waited for lost commands and paired readings by arrival fell to 0.05 there). The heavy
+schedules (5 / 20 % loss for minutes, 30 s outages, load, three controllers) are in `ops-bench
+faults`. Links that stay dead while discovery goes on (the relay's stuck-links fault) are ended by
+the Gymnasium bridge replacing its DDS participant. Needs root and `ip`; skipped with the reason
+otherwise.
 """
 
 from __future__ import annotations
@@ -115,9 +115,10 @@ def _powers(proc) -> list[float]:
 
 
 def test_the_tracker_holds_hard_mode_through_20_percent_loss(hosts, procs):
-    """Issue 34: at 20 % loss each way the tracker's share of readings >= 0.95 fell to 0.05
-    (a lost command stalled the loop for 50-600 ms behind Fast DDS's in-order repair, and its
-    readings were paired with other steps' traces); after the fix about 1.0 on an idle machine.
+    """At 20 % loss each way the tracker's share of readings >= 0.95 falls to 0.05 when a lost
+    command stalls the loop for 50-600 ms behind Fast DDS's in-order repair and its readings are
+    paired with other steps' traces; with best-effort readings paired by sequence number it is
+    about 1.0 on an idle machine.
     Counted on the simulator's side (host A, no loss there), after 5 s on the lossy link."""
     env = hosts.env()
     hosts.set()

@@ -177,8 +177,8 @@ def _back_after(observer, t0: float, n: int = 10) -> float | None:
 def test_tracker_through_the_rig_is_back_within_2_s_of_a_5_s_scope_outage(
     procs, observer, tmp_path
 ):
-    """Issue 31's goal: the scope stopped for 5 s, then back: the rig holds its voltages, then
-    is back >= 0.95 within 2 s of the scope's return (N = 5, hard, the tracker told the rig's
+    """The goal for an outage: the scope stopped for 5 s, then back: the rig holds its voltages,
+    then is back >= 0.95 within 2 s of the scope's return (N = 5, hard, the tracker told the rig's
     optics by its YAML)."""
     rig_yaml, record, port = _calibrated_simlab(
         procs, tmp_path, "--stage", "5", "--mode", "hard", "--seed", "1"
@@ -199,8 +199,8 @@ def test_tracker_through_the_rig_is_back_within_2_s_of_a_5_s_scope_outage(
     tracker.wait_for("closing the loop", 30)
     started = time.monotonic()
     # A lock held for 3 s (150 readings), not one just taken: its drift estimate carries the
-    # tracker across the outage (2026-11-27: paused 1 s after the lock, 3 of 18 runs were back
-    # only 2.0-4.2 s after the scope's return)
+    # tracker across the outage (paused 1 s after the lock, 3 of 18 runs were back only
+    # 2.0-4.2 s after the scope's return)
     observer.wait_until(
         lambda: _back_after(observer, started, 150) is not None,
         90,

@@ -205,7 +205,7 @@ def test_parameters_change_live_and_stage_is_refused(procs, observer):
     assert "hard" in got.stdout
     ok = run_ros2("param", "set", "/ops_sim", "detector", "total")
     assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
-    # The rig (issue 30): a figure in range applies live, one out of range is refused with it.
+    # The rig: a figure in range applies live, one out of range is refused with it.
     ok = run_ros2("param", "set", "/ops_sim", "latency_steps", "2")
     assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
     bad = run_ros2("param", "set", "/ops_sim", "trace_adc_bits", "40")

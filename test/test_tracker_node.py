@@ -98,7 +98,7 @@ def test_a_bad_rig_file_stops_a_controller_before_it_spins(procs, tmp_path, exe)
     ],
 )
 def test_a_bad_rig_stops_a_controller_before_it_spins(procs, exe, value, allowed):
-    """The controller nodes take the rig as the simulator does (issue 30): a value outside the
+    """The controller nodes take the rig as the simulator does: a value outside the
     simulator's range stops the node before it spins, naming the parameter and the range."""
     node = start(procs, exe, "ops_controller_ros", exe, value)
     assert node.wait_exit(30) == 2
@@ -151,7 +151,7 @@ def test_a_knot_test_after_the_command_revises_it_over_dds(procs, observer):
 def test_a_latency_it_was_not_told_is_named_and_taken_over_dds(procs, observer):
     """A rig one step late, a tracker told of none: within 50 readings the tracker says so on
     its log and on /diagnostics (WARN, told and measured steps), takes the measured latency and
-    locks (issue 30)."""
+    locks."""
     from diagnostic_msgs.msg import DiagnosticArray
 
     warnings = []

@@ -1,13 +1,13 @@
 """Delay commands of a free-running simulator, read once per step instead of once per message.
 
-A free-running simulator applies the latest valid command at its next step; what arrives in
-between only matters through that one. With a subscription callback, rclpy's executor runs
-Python for every message (~tens of microseconds each), so a flood on ``ops/delay_cmd`` - one
-careless script at 30,000 messages/s - takes the simulator's CPU and its step rate with it
-(issue 21: 80 steps/s, lock 26 %). Here the subscription belongs to a callback group that the
-executor never waits on; at each step :meth:`CommandInbox.take_latest` takes what queued in the
-DDS reader (serialized: a message is decoded once, not once per copy), checks each, and
-keeps the newest valid one. Identical serialized messages share one verdict, so a flood of one
+A free-running simulator applies the latest valid command at its next step; what arrives in between
+only matters through that one. With a subscription callback, rclpy's executor runs Python for every
+message (~tens of microseconds each), so a flood on ``ops/delay_cmd`` - one careless script at
+30,000 messages/s - takes the simulator's CPU and its step rate with it (with a plain subscription
+the simulator fell to 80 steps/s and the lock to 26 %). Here the subscription belongs to a callback
+group that the executor never waits on; at each step :meth:`CommandInbox.take_latest` takes what
+queued in the DDS reader (serialized: a message is decoded once, not once per copy), checks each,
+and keeps the newest valid one. Identical serialized messages share one verdict, so a flood of one
 rejected message costs a dictionary lookup each. The reader keeps ``depth`` messages: a valid
 command is kept through a flood of up to ``depth`` messages between two steps (4000).
 

@@ -41,7 +41,7 @@ The interference is periodic in each delay by one optical period (the pulse enve
 times wider, hardly changes over the drift's range), so a policy sees the numbers it was trained
 on wherever drift has carried the delays over hours; absolute set-points (w = 0, the default)
 leave a policy trained on 200-step episodes, where they stay within about a cycle of 0, once the
-drift has moved them a few cycles (measured: issue 20, docs/results.md). The reference is state:
+drift has moved them a few cycles (measured: docs/results/continuous). The reference is state:
 build these observations with :class:`ObservationBuilder`.
 
 That is one *frame*; with ``history = 0`` (the

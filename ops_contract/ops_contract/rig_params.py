@@ -1,6 +1,7 @@
 """The rig's node parameters, declared once for every node that is told the rig: the preset
-``realism`` and one parameter per figure of the rig (``ops_contract.config.REALISM_PRESETS``'s keys,
-issue 30), each -1 for "the preset's value" or a value in the config's range (``LIMITS``).
+``realism`` and one parameter per figure of the rig (``ops_contract.config.REALISM_PRESETS``'s
+keys; docs/physics.md, "Rig imperfections"), each -1 for "the preset's value" or a value in the
+config's range (``LIMITS``).
 
 The controller nodes (``ops_tracker``, ``ops_spgd``, ``ops_policy``) declare :data:`RIG_PARAMS`
 and build the nominal model they control with :func:`rig_config`, as ``evaluate --realism /

@@ -1,4 +1,4 @@
-"""A rig drawn anew for every episode (domain randomization; issue 32, "Learning on the rig").
+"""A rig drawn anew for every episode (domain randomization: training on the rig).
 
 :class:`RigRanges` holds, for some of the rig's figures (``config.RIG_KEYS``: latency, actuator,
 digitizer, source, detector noise), an inclusive range ``(low, high)``. At each episode reset an

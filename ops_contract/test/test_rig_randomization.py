@@ -1,5 +1,5 @@
-"""A rig drawn anew for every episode (ops_contract.rig_randomization; issue 32, "Learning on the
-rig"): the draws stay in their ranges, differ between episodes and environments, repeat for the
+"""A rig drawn anew for every episode (ops_contract.rig_randomization; training on
+the rig): the draws stay in their ranges, differ between episodes and environments, repeat for the
 same seed, and a bad range is refused naming the figure and what it may be.
 
 Property-style: each property is checked over many ranges and seeds drawn from a fixed stream

@@ -48,7 +48,7 @@ class StepPairing:
     Each step publishes one message on ``ops/delays``, ``ops/intensity`` and ``ops/power``, so
     within one simulator run the sequence numbers of a step's messages on two topics differ by a
     fixed offset (0 for this project's simulator), learned as the most common difference over the
-    last ``window`` power messages. Two things break a pairing by arrival (issue 34):
+    last ``window`` power messages. Two things break a pairing by arrival:
 
     - a lost message: at 20 % loss a fifth of the power readings came without their own trace,
       and the latest trace was an older step's;
@@ -150,8 +150,8 @@ class CommandTracker:
         self.resends += again
         self.pending = command
         # A re-sent command whose set-points already came back stays matched: the simulator
-        # holds them, and every later step's reading is the command's (issue 34: un-matching
-        # on each re-send cost the loop another set-points message per loss).
+        # holds them, and every later step's reading is the command's (un-matching on each
+        # re-send would cost the loop another set-points message per loss).
         self.matched = self.matched and again
         self.sent_at = now
         return self.pending

@@ -6,7 +6,7 @@ step), then ``ops/intensity`` and ``ops/power``. After sending a command the nod
 delays message equal to it (:class:`CommandTracker`); a power reading is used only when its step
 (by DDS sequence number, :class:`StepPairing`) is not before the first step reported on the
 command's set-points, with the trace of that same step, so a reading never predates its command
-and never mixes two steps (issue 34; without sequence numbers: the latest set-points must equal
+and never mixes two steps (without sequence numbers: the latest set-points must equal
 the command, and the latest trace is taken). The stage count (and the trace's samples per slot)
 come from the messages. If no matching reading arrives within ``timeout_s`` (simulator slow,
 restarted or gone) the command is sent again; a simulator that comes back with another stage
@@ -76,7 +76,7 @@ LOOP_PARAMS = [
     *loop_status.PARAMS,
     # the rig YAML: the lines' range every controller keeps (and the tracker's optics)
     controller_params.RIG_CONFIG,
-    # the rig the controller is told of, as the simulator node takes it (issue 30)
+    # the rig the controller is told of, as the simulator node takes it
     *RIG_PARAMS,
 ]
 #: The parameters a running loop applies at once; the others are fixed after start.
@@ -131,7 +131,7 @@ class ControllerLoopNode(Node):
         # Delays first: when several are ready the executor takes them in creation order. The
         # latched subscription gives the set-points at start (a lockstep simulator publishes
         # only when commanded); the best-effort ones carry the running loop: a lost message
-        # is not waited for (issue 21: seconds per loss on a lossy link).
+        # is not waited for (a reliable one costs seconds per loss on a lossy link).
         self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
         self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_READINGS)
         self.create_subscription(
@@ -381,7 +381,7 @@ class ControllerLoopNode(Node):
                 )
         self._last_power_seq, self._last_power_stamp = seq, stamp
         # Steps since the step that took the command (its set-points came back on ops/delays):
-        # under a latency a command acts that many steps after it was taken (issue 30)
+        # under a latency a command acts that many steps after it was taken
         age = None
         if seq is not None and self._command_step is not None:
             age = max(self._pairing.step_of(seq, "delays") - self._command_step, 0)
@@ -404,7 +404,7 @@ class ControllerLoopNode(Node):
     def _is_reading(self, seq) -> bool:
         """Whether the power message numbered ``seq`` is a reading of the pending command: its
         step is not before the first step seen on the command's set-points, and its own trace
-        came (issue 34). Without sequence numbers: the latest set-points equal the command."""
+        came. Without sequence numbers: the latest set-points equal the command."""
         if seq is None:
             return self._commands.matched
         first = self._command_step

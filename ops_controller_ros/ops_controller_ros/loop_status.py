@@ -4,7 +4,7 @@ Judged from the readings themselves, never from the controller's belief (the tra
 "(locked)" at P_N/P_max = 0.015 while its model was off): ``locked`` when each of the last
 ``window`` readings the loop used is at least ``lock_threshold``, and, once locked, until
 ``unlock_after`` readings in a row fall below it (hysteresis: one low reading on a noisy link is
-no lost lock, and the log does not flip several times a second, issue 32); ``starved`` when no
+no lost lock, and the log does not flip several times a second); ``starved`` when no
 reading came for ``starved_after_s`` (the simulator is gone, the link is down, or the CPU cannot
 keep up), and before the first one; ``searching`` otherwise. Every controller node publishes it,
 latched, on ``ops/controller/status`` (std_msgs/String) when it changes, and logs the change.

@@ -3,8 +3,8 @@
 A rig publishes a reading per tick of its own timer, but not while its scope is gone (an outage,
 a timed-out read): its DDS sequence numbers then go on by one across seconds in which the
 stacker drifted. A controller told "one step" predicts the drift of one step and finds the
-stack far from it (issue 31: 7-18 readings to re-lock after a 5 s outage in process, and over
-the rig often more than the 2 s goal). The rig's own clock tells the truth: the source
+stack far from it (7-18 readings to re-lock after a 5 s outage in process, and over the rig
+often more than 2 s). The rig's own clock tells the truth: the source
 timestamps of its messages. The period of its ticks is the median spacing of messages whose
 sequence numbers follow each other; a gap of at least ``MIN_MISSED_TICKS`` more ticks than the
 sequence numbers say counts as the ticks it spans (at most ``MAX_GAP_TICKS``).

@@ -93,7 +93,7 @@ class TrackerNode(ControllerLoopNode):
         self._false_locks = 0
 
     def after_reading(self) -> None:
-        """A latency the readings fit better than the told one (issue 30): said on the log
+        """A latency the readings fit better than the told one: said on the log
         and on /diagnostics (WARN, told and measured steps) as soon as the tracker takes it,
         and on /diagnostics again with every progress line while it stands. A lock dropped as
         false: said on the log."""

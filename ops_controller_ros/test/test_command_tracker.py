@@ -83,7 +83,7 @@ def test_steps_between_readings_from_the_publication_sequence_numbers():
 
 
 def test_a_resent_command_stays_matched_once_its_setpoints_came_back():
-    """Issue 34: un-matching on a re-send cost the loop another set-points message per loss."""
+    """Un-matching on a re-send would cost the loop another set-points message per loss."""
     t = CommandTracker(timeout_s=1.0)
     t.sent([1.0], now=0.0)
     assert t.on_setpoints([1.0], now=0.01)

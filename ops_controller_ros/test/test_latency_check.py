@@ -1,5 +1,5 @@
 """The tracker's latency check: a latency it was not told, or a wrong one, is found from the
-readings and taken, instead of a silent collapse (issue 30)."""
+readings and taken, instead of a silent collapse."""
 
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ def test_locked_only_when_every_one_of_the_last_ten_readings_is_above_the_thresh
 
 
 def test_a_lock_is_left_only_after_several_low_readings_in_a_row():
-    """Hysteresis (issue 32: the log flipped locked -> searching several times a second)."""
+    """Hysteresis: without it the log flipped locked -> searching several times a second."""
     status = LoopStatus(lock_threshold=0.9, starved_after_s=1.0, unlock_after=3)
     t = 0.0
     for _ in range(10):

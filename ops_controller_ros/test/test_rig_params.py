@@ -1,5 +1,5 @@
-"""The rig a controller node is told of (issue 30) and the tracker's parameters, declared once
-(issue 33): pure checks, no node."""
+"""The rig a controller node is told of and the tracker's parameters, declared once: pure
+checks, no node."""
 
 from __future__ import annotations
 

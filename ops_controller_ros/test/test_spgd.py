@@ -132,7 +132,7 @@ def _latency_finals(latency: int, told: bool, seeds=range(8), steps: int = 400) 
 
 @pytest.mark.parametrize("latency", [1, 2, 3])
 def test_told_the_latency_spgd_stacks_as_without_it(latency):
-    """Issue 30: with a step of latency SPGD fell from 0.42 to 0.03 (N = 5, medium). Told it, it
+    """With a step of latency an untold SPGD falls from 0.42 to 0.03 (N = 5, medium). Told it, it
     files each reading under the perturbation that made it, both halves of a pair around the
     same set-points."""
     ideal = _latency_finals(0, told=True)

@@ -325,7 +325,7 @@ def _latency_run(
 
 @pytest.mark.parametrize("latency", [1, 3])
 def test_told_the_latency_it_holds_hard_mode(latency):
-    """Issue 30: one step of latency took the untold tracker from 0.997 to 0.10. Told it, the
+    """One step of latency takes an untold tracker from 0.997 to 0.10. Told it, the
     tracker matches each reading to the command in effect then and aims that far ahead. (Untold
     and without its latency check, it still collapses; test_latency_check.py has the check.)"""
     told = _latency_run(7, latency, told=True)
@@ -350,13 +350,13 @@ def _digitized_run(seed: int, told: bool, params: TrackerParams | None = None) -
 
 
 def test_told_of_an_8_bit_trace_it_holds_hard_mode():
-    """Issue 30: an 8-bit trace took the untold tracker to 0.86. Told the digitizer, it weighs
-    the readings by their rounding (ops_sim_ros.rig.reading_noise_std). Measured (seeds 3-5,
-    mean of the last 50 of 150 readings): told 0.967-0.982, untold 0.775-0.895. Untold, the
-    tracking fits now find the rounding as noise (``fit_noisy_threshold``), less surely than
-    told: on one CPU seeds 3 and 5 read 0.992 and 0.972, on another 0.986 and 0.948 (seeds 1-10
-    there: 0.911-0.996, mean 0.971; told 0.994 each, switch off 0.705-0.886); with that switch
-    off, as before. So the untold runs are asserted on their mean over three seeds."""
+    """Told of an 8-bit trace, the tracker weighs the readings by their rounding
+    (ops_sim_ros.rig.reading_noise_std). Measured (seeds 3-5, mean of the last 50 of 150
+    readings): told 0.967-0.982; untold with the fits' noise switch off (``fit_noisy_threshold``
+    0) 0.775-0.895. Untold with the switch on, the tracking fits find the rounding as noise, less
+    surely than told: on one CPU seeds 3 and 5 read 0.992 and 0.972, on another 0.986 and 0.948
+    (seeds 1-10 there: 0.911-0.996, mean 0.971; told 0.994 each, switch off 0.705-0.886). So the
+    untold runs are asserted on their mean over three seeds."""
     told = [_digitized_run(seed, True).mean() for seed in (3, 5)]
     switch_off = TrackerParams(fit_noisy_threshold=0.0)
     blind = [_digitized_run(seed, False, switch_off).mean() for seed in (3, 5)]

@@ -1,4 +1,4 @@
-"""The tracker weighs a reading's entries by their noise (issue 30): the source's pulse-to-pulse
+"""The tracker weighs a reading's entries by their noise: the source's pulse-to-pulse
 noise moves the stacked slot and the power, not the dark slots."""
 
 from __future__ import annotations

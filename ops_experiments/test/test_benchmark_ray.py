@@ -178,7 +178,7 @@ def test_ctrl_c_brings_the_work_back_and_the_same_command_resumes(tmp_path):
     base += ["--out", str(out), "--ray-address", "local", "--jobs", "1", "--algos", "sac"]
     base += ["--modes", "easy", "--controllers", "--extra-stages", "--save-every", "100000"]
     # The local node's TMPDIR (its tasks' folders; short: Ray's sockets go there too). A foreign
-    # cluster's address in the environment must not capture a local instance (issue 33).
+    # cluster's address in the environment must not capture a local instance.
     node_tmp = Path(tempfile.mkdtemp(prefix="opsn"))
     env = {**os.environ, "TMPDIR": str(node_tmp), "RAY_ADDRESS": "127.0.0.1:9"}
     proc = subprocess.Popen(

@@ -21,7 +21,7 @@ def test_evaluate_controller_tracker_with_a_model_mismatch(tmp_path):
 
 def test_a_rig_the_tracker_is_told_of_and_one_it_is_not(tmp_path, capsys):
     """`--rig latency_steps=2`: the simulator's commands act two steps late and the tracker
-    knows it (issue 30; told nothing, one step of latency took it to 0.10). The summary prints
+    knows it (told nothing, one step of latency takes it to 0.10). The summary prints
     the worst episode beside the mean; a figure that is not the rig's is refused by name."""
     out = tmp_path / "eval"
     argv = ["--controller", "tracker", "--stage", "3", "--mode", "medium", "--episodes", "2"]
@@ -39,7 +39,7 @@ def test_a_rig_the_tracker_is_told_of_and_one_it_is_not(tmp_path, capsys):
 
 def test_the_default_output_folder_names_the_cell_once(tmp_path):
     """A model folder named for its cell (models/n5_easy) is not named twice
-    (runs/eval/n5_easy_n5_easy, issue 33); a controller's folder gets the cell."""
+    (not runs/eval/n5_easy_n5_easy); a controller's folder gets the cell."""
     from types import SimpleNamespace
 
     model = tmp_path / "n5_easy"

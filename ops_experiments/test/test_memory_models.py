@@ -1,4 +1,4 @@
-"""Models with observation memory (issue 11): trained with ``--obs-history``, saved with their
+"""Models with observation memory: trained with ``--obs-history``, saved with their
 spec, rebuilt identically by the policy runner's code path, evaluated, refused on a mismatch; and
 the ``fast`` hyper-parameter set with sb3-contrib's algorithms."""
 

@@ -1,5 +1,5 @@
-"""The learned agents shipped in models/ (issue 11): each folder loads as `policy` and `evaluate`
-load it, and shows what it must on any CPU (issue 18).
+"""The learned agents shipped in models/: each folder loads as `policy` and `evaluate` load it,
+and shows what it must on any CPU.
 
 No replay of a recorded episode: a closed loop of a neural policy and a chaotic landscape amplifies
 the last bits of floating-point arithmetic, which differ between CPUs and BLAS kernels (one

@@ -492,7 +492,7 @@ def test_the_rig_reaches_the_training_environments_and_a_resumed_run_keeps_it(tm
 
 
 def test_a_rig_drawn_per_episode_is_saved_resumed_and_the_model_evaluates_on_lab(tmp_path):
-    """--rig-randomize (issue 32, "Learning on the rig"): each training env draws its rig at
+    """--rig-randomize (training on the rig): each training env draws its rig at
     every reset; the ranges are printed and saved in the metadata (rig_randomize, beside the
     fixed rig); --resume keeps them; the model evaluates on the fixed lab rig; a range outside
     the figure's limits is refused (exit 2) naming it and what it may be."""

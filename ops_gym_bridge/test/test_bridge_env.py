@@ -327,8 +327,8 @@ def test_a_long_silence_replaces_the_participant_and_the_steps_carry_on(procs):
     """A request unanswered for reconnect_after_s is sent again over a new DDS participant: the
     simulator stopped for 4 s with reconnect_after_s 1.5, the client replaces its participant
     while the simulator is stopped, and once it runs again the step gets its own answer over the
-    new one and the protocol stays aligned (issue 21's outage test failed twice in CI with the
-    simulator running again and no answer reaching the old participant)."""
+    new one and the protocol stays aligned (the outage test failed twice in CI with the simulator
+    running again and no answer reaching the old participant)."""
     sim = start_sim(procs, stage=3, mode="easy", namespace="/renew", name="renew")
     env = RosOpsEnv(
         stage=3,

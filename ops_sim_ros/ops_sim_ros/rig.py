@@ -1,4 +1,4 @@
-"""What stands between a controller and the optics on a real rig (issue 30), for a batch of B
+"""What stands between a controller and the optics on a real rig, for a batch of B
 simulated stackers: the command's latency, the delay-line actuator (DAC, open-loop piezo
 hysteresis, finite response) and the trace's digitizer (averaging, ADC). docs/physics.md, "Rig
 imperfections", gives each figure's meaning, unit, range and typical lab value.

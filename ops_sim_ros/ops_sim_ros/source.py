@@ -1,4 +1,4 @@
-"""The laser source's imperfections (issue 30): unequal pulses in a burst and pulse-to-pulse
+"""The laser source's imperfections: unequal pulses in a burst and pulse-to-pulse
 energy noise. docs/physics.md, "Rig imperfections", gives their meaning and typical values.
 
 Both act on the input pulses' field amplitudes. Amplitudes are normalized so that the mean pulse

@@ -71,7 +71,7 @@ def test_input_coding_is_the_seeds_recursion():
         assert [pol for pol, _ in code] == ["p", "s"] * 2 ** (n - 1)
 
 
-# The authors' code (pynlo CPS_env) at these delay errors, in optical cycles (issue 8's table).
+# The authors' code (pynlo CPS_env) at these delay errors, in optical cycles.
 AUTHORS = [
     (3, {0: 0.5}, 0.0156, 0.4375),
     (5, {0: 0.5}, 0.0100, 0.1084),

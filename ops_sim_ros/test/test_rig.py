@@ -1,4 +1,4 @@
-"""The rig between controller and optics (issue 30; ops_sim_ros.rig): latency, DAC, hysteresis,
+"""The rig between controller and optics (ops_sim_ros.rig): latency, DAC, hysteresis,
 actuator lag and the trace's digitizer, each as a property of the simulation."""
 
 import re

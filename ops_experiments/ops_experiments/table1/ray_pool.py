@@ -307,7 +307,7 @@ class RayPool:
         if address == "local":
             # address="local": a new instance of our own, whatever RAY_ADDRESS or the address a
             # cluster left in Ray's temp folder says (without it, ray.init joined that cluster
-            # and refused num_cpus: issue 33).
+            # and refused num_cpus).
             ray.init(
                 address="local",
                 num_cpus=jobs,

@@ -13,7 +13,7 @@ executor while it waits). With a finite ``timeout_s`` every wait has a deadline;
 :class:`SimulatorTimeoutError` says what was awaited. With ``timeout_s=None`` (training's
 default) a wait has no deadline: through lost messages and outages of any length the client
 re-sends its request every ``retry_after_s``, says every few seconds that it is still waiting, and
-carries on when the simulator answers again (issue 21). A request left unanswered for
+carries on when the simulator answers again. A request left unanswered for
 ``reconnect_after_s`` while the simulator's endpoints stayed matched makes the client close its
 DDS participant and open a new one, then send the request again (next time after twice as long,
 at most :data:`RECONNECT_LIMIT_S`): DDS's state for each link, which a process frozen and resumed
