@@ -21,6 +21,14 @@ MODES = ("easy", "medium", "hard", "extreme")
 SPLITS = ("train", "test")
 DETECTORS = ("polarizer", "total")
 REALISMS = ("ideal", "lab")
+#: What a control step is (docs/physics.md, "Physical time"): ``step``, the paper's noise per
+#: step whatever the step lasts; ``seconds``, the noise of ``step_s`` seconds of physical time.
+TIME_BASES = ("step", "seconds")
+#: The delay lines' vibration (ops_sim_ros.vibration): none, or a lab's lines and 1/f floor.
+VIBRATIONS = ("none", "lab")
+#: The paper's control step (appendix C: ~0.1 s per interaction of a real stacker): under
+#: ``time_base`` seconds, the figures counted per step are per this much physical time.
+REFERENCE_STEP_S = 0.1
 MAX_STAGE = 10
 #: Inclusive (low, high) of the fields a user sets most (node parameters, ``--env``): the one
 #: rule that make_config, the simulator node's parameter descriptors and the docs follow.
@@ -46,6 +54,8 @@ LIMITS = {
     # the source (ops_sim_ros.source): pulse-to-pulse energy noise and the burst's droop
     "pulse_amplitude_noise": (0.0, 0.3),
     "burst_envelope": (0.0, 0.9),
+    # the control period (physical time): 10 us to 10 s
+    "step_s": (1e-5, 10.0),
 }
 #: What a value of 0 means where it is allowed below the usual range (the error messages say it).
 IDEAL_ZERO = {"dac_bits": "an ideal DAC", "trace_adc_bits": "an ideal trace"}
@@ -81,6 +91,9 @@ REALISM_PRESETS = {
 #: The figures of the rig between controller and optics (``evaluate --rig``, docs/physics.md):
 #: the presets' keys.
 RIG_KEYS = (*REALISM_PRESETS["ideal"], "detector_noise")
+#: The keys of physical time (time base, control period, vibration): OpsConfig fields that
+#: ``--env`` and ``--rig`` take besides the rig's figures (not drawn by rig randomization).
+TIME_KEYS = ("time_base", "step_s", "vibration")
 
 # Each mode's initial delay errors and drift, after the authors' code (docs/physics.md, "Modes").
 # Initial error per stage: normal(0, initial_sigma_cycles) clipped at +- initial_clip_sigmas sigma,
@@ -168,6 +181,10 @@ class OpsConfig:
     # --- the source (ops_sim_ros.source); ideal by default
     pulse_amplitude_noise: float = 0.0  # rms pulse-to-pulse energy noise, fraction (per step)
     burst_envelope: float = 0.0  # droop of pulse energy from the burst's first to its last pulse
+    # --- physical time (docs/physics.md, "Physical time and vibration")
+    time_base: str = "step"  # "step": noise per step (the paper's); "seconds": per step_s of time
+    step_s: float = REFERENCE_STEP_S  # the control period, s (drift knots, vibration's clock)
+    vibration: str = "none"  # "none", or "lab": acoustic lines and a 1/f floor (ops_sim_ros)
 
     # ----------------------------------------------------------------- derived quantities
     @property
@@ -216,6 +233,13 @@ class OpsConfig:
     def ideal_digitizer(self) -> bool:
         """The detected energies are reported as they are (with the detector's noise)."""
         return self.trace_adc_bits == 0 and self.trace_averages == 1
+
+    @property
+    def time_scale(self) -> float:
+        """Physical time of a step over the paper's (``REFERENCE_STEP_S``) under ``time_base``
+        seconds; 1 under ``step``. The random walk's variance per step and the drift per step
+        scale with it, the steps between drift knots with its inverse."""
+        return self.step_s / REFERENCE_STEP_S if self.time_base == "seconds" else 1.0
 
     @property
     def drift_enabled(self) -> bool:
@@ -272,7 +296,14 @@ _INT_FIELDS = {
 #: The integer fields (public: :mod:`ops_contract.rig_randomization` draws integers for them).
 INT_FIELDS = frozenset(_INT_FIELDS)
 _BOOL_FIELDS = {"drift_per_stage"}
-_STR_FIELDS = {"mode": MODES, "split": SPLITS, "detector": DETECTORS, "realism": REALISMS}
+_STR_FIELDS = {
+    "mode": MODES,
+    "split": SPLITS,
+    "detector": DETECTORS,
+    "realism": REALISMS,
+    "time_base": TIME_BASES,
+    "vibration": VIBRATIONS,
+}
 
 
 def _check(cond: bool, message: str) -> None:
@@ -336,9 +367,10 @@ def _check_types(values: dict[str, Any]) -> None:
             ok = isinstance(v, int | float) and not isinstance(v, bool)
             _check(ok, f"{name} must be a number (got {v!r})")
             values[name] = float(v)
+            limits = f" from {LIMITS[name][0]} to {LIMITS[name][1]}" if name in LIMITS else ""
             _check(
                 values[name] == values[name] and abs(values[name]) != float("inf"),
-                f"{name} must be finite (got {v!r})",
+                f"{name} must be a finite number{limits} (got {v!r})",
             )
 
 

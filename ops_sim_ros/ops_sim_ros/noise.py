@@ -16,13 +16,30 @@ see. As in the authors' code, e_t is a random walk:
   across episodes; the accumulated drift of an episode turns back at +- ``drift_bound_fs``.
 
 Only control steps advance the walk and the drift: the measurement at reset sees e_0.
+
+Physical time (``time_base`` seconds, docs/physics.md): the figures above are per step of the
+paper's 0.1 s; a step of ``step_s`` adds a walk increment of sigma x sqrt(step_s / 0.1) and a
+drift of mu x step_s / 0.1, and the knots come every knot x 0.1 / step_s steps (rounded, at
+least 1), so a simulated second holds the same disturbance at any rate; at step_s 0.1 the
+arithmetic is that of ``step``, bit for bit. A ``vibration`` preset adds the zero-mean offsets
+of :mod:`ops_sim_ros.vibration` at t = steps x ``step_s`` since the process started.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .vibration import make_vibration
+
 _FOREVER = 1 << 62
+
+
+def loop_steps(reference_steps: int, time_scale: float) -> int:
+    """Steps of a loop whose step lasts ``time_scale`` reference steps that make
+    ``reference_steps`` of them (0 stays 0; otherwise rounded, at least 1)."""
+    if reference_steps == 0 or time_scale == 1.0:
+        return int(reference_steps)
+    return max(1, round(reference_steps / time_scale))
 
 
 class DelayNoise:
@@ -44,6 +61,8 @@ class DelayNoise:
         initial_clip_sigmas: float = 2.0,
         initial_offset_sigmas: float = 0.0,
         rng: np.random.Generator | None = None,
+        step_s: float = 0.1,
+        vibration: str = "none",
     ) -> None:
         self.num_envs = int(num_envs)
         self.stage = int(stage)
@@ -60,25 +79,33 @@ class DelayNoise:
         self.initial_offset = float(initial_offset_sigmas) * self.initial_sigma
         self.drift_enabled = self.slope_max > 0.0
         self.knots = self.drift_enabled and self.knot_max > 0
+        self.step_s = float(step_s)
+        self.vibration_name = str(vibration)
         self.restart(rng if rng is not None else np.random.default_rng())
 
     @classmethod
     def from_config(cls, config, num_envs: int, rng: np.random.Generator | None = None):
+        """The disturbance ``config`` describes, in steps of its ``step_s`` under ``time_base``
+        seconds (``config.time_scale`` 1, the figures as they are, under ``step``)."""
+        scale = config.time_scale
+        walk_scale = float(np.sqrt(scale))
         return cls(
             num_envs=num_envs,
             stage=config.stage,
-            jitter_sigma_fs=config.jitter_sigma_fs,
+            jitter_sigma_fs=config.jitter_sigma_fs * walk_scale,
             jitter_clip_sigmas=config.jitter_clip_sigmas,
-            drift_slope_min_fs=config.cycles_to_fs(config.drift_slope_min_cycles),
-            drift_slope_max_fs=config.cycles_to_fs(config.drift_slope_max_cycles),
+            drift_slope_min_fs=config.cycles_to_fs(config.drift_slope_min_cycles) * scale,
+            drift_slope_max_fs=config.cycles_to_fs(config.drift_slope_max_cycles) * scale,
             drift_per_stage=config.drift_per_stage,
-            drift_knot_min_steps=config.drift_knot_min_steps,
-            drift_knot_max_steps=config.drift_knot_max_steps,
+            drift_knot_min_steps=loop_steps(config.drift_knot_min_steps, scale),
+            drift_knot_max_steps=loop_steps(config.drift_knot_max_steps, scale),
             drift_bound_fs=config.cycles_to_fs(config.drift_bound_cycles),
             initial_sigma_fs=config.initial_sigma_fs,
             initial_clip_sigmas=config.initial_clip_sigmas,
             initial_offset_sigmas=config.initial_offset_sigmas,
             rng=rng,
+            step_s=config.step_s,
+            vibration=config.vibration,
         )
 
     # ------------------------------------------------------------------ episodes
@@ -96,6 +123,30 @@ class DelayNoise:
         self._bound_safe = self._knot_in = _FOREVER
         if self.knots:
             self._redraw_knots(np.ones(shape, dtype=bool))
+        # the vibration's clock: t = time0 + (global_step - step0) * step_s
+        self._time0, self._step0 = 0.0, 0
+        self.vibration = make_vibration(self.vibration_name, self.num_envs, self.stage, rng)
+
+    def continue_from(self, other: DelayNoise) -> None:
+        """Carry on where ``other`` (the same lines under other figures) is: its walk and
+        accumulated drift become this walk (the drift process starts afresh), its clock runs
+        on at this ``step_s``, and its vibration goes on where the preset is the same."""
+        self.walk = other.walk + other.mu
+        self._time0, self._step0 = other.time_s, self.global_step
+        if other.vibration_name == self.vibration_name:
+            self.vibration = other.vibration
+
+    def place(self, errors: np.ndarray) -> None:
+        """Make e_t equal ``errors`` (num_envs, stage) fs now: the walk takes the difference."""
+        if self.vibration is None:
+            self.walk = errors - self.mu
+        else:
+            self.walk = errors - (self.mu + self.vibration.at(self.time_s))
+
+    @property
+    def time_s(self) -> float:
+        """Physical time since the process started (steps x ``step_s``), s."""
+        return self._time0 + (self.global_step - self._step0) * self.step_s
 
     def new_episodes(self, mask) -> None:
         """Draw the initial delay errors (and, for per-episode drift, mu) where ``mask`` is True."""
@@ -148,35 +199,45 @@ class DelayNoise:
     @property
     def offset(self) -> np.ndarray:
         """e_t, (num_envs, stage) fs: what each line adds to its set-point now (a fresh array)."""
+        return self.sample(advance=False)
+
+    @property
+    def slow_offset(self) -> np.ndarray:
+        """The walk and the drift without the vibration (a fresh array), fs."""
         return self.walk + self.mu
 
     def sample(self, advance: bool = True) -> np.ndarray:
         """Return e_t (a fresh (num_envs, stage) array, fs); ``advance``: take one step first."""
-        if not advance:
-            return self.walk + self.mu
-        self.global_step += 1
-        inc = self.rng.standard_normal((self.num_envs, self.stage))
-        inc *= self.sigma
-        np.clip(inc, -self.clip, self.clip, out=inc)
-        self.walk += inc
-        if self.drift_enabled:
-            self.mu += self.slope
-            # The bound and knot checks only run when they can fire (counters kept by
-            # _redraw_knots and _update_bound_safe); the result is the same as checking every step.
-            self._bound_safe -= 1
-            if self._bound_safe < 0:
-                out = np.abs(self.mu) > self.bound
-                if out.any():
-                    self.slope[out] = -np.sign(self.mu[out]) * np.abs(self.slope[out])
-                self._update_bound_safe()
-            if self.knots:
-                self.steps_left -= 1
-                self._knot_in -= 1
-                if self._knot_in <= 0:
-                    knot = self.steps_left <= 0
-                    if knot.any():
-                        self._redraw_knots(knot)
-                    else:
-                        self._knot_in = int(self.steps_left.min())
-            return self.walk + self.mu
-        return self.walk.copy()
+        if advance:
+            self.global_step += 1
+            inc = self.rng.standard_normal((self.num_envs, self.stage))
+            inc *= self.sigma
+            np.clip(inc, -self.clip, self.clip, out=inc)
+            self.walk += inc
+            if self.drift_enabled:
+                self._advance_drift()
+        out = self.walk + self.mu if self.drift_enabled or not advance else self.walk.copy()
+        if self.vibration is not None:
+            out += self.vibration.at(self.time_s)
+        return out
+
+    def _advance_drift(self) -> None:
+        """One step of the drift: mu moves by its slope, turns at the bound, knots redraw."""
+        self.mu += self.slope
+        # The bound and knot checks only run when they can fire (counters kept by
+        # _redraw_knots and _update_bound_safe); the result is the same as checking every step.
+        self._bound_safe -= 1
+        if self._bound_safe < 0:
+            out = np.abs(self.mu) > self.bound
+            if out.any():
+                self.slope[out] = -np.sign(self.mu[out]) * np.abs(self.slope[out])
+            self._update_bound_safe()
+        if self.knots:
+            self.steps_left -= 1
+            self._knot_in -= 1
+            if self._knot_in <= 0:
+                knot = self.steps_left <= 0
+                if knot.any():
+                    self._redraw_knots(knot)
+                else:
+                    self._knot_in = int(self.steps_left.min())

@@ -78,7 +78,8 @@ class BatchedSimulation:
 
     def with_config(self, config: OpsConfig) -> BatchedSimulation:
         """A simulation with other figures that continues this one: same random stream,
-        set-points, step counts and delay-line errors (the drift process starts afresh)."""
+        set-points, step counts and delay-line errors (the drift process starts afresh; the
+        vibration and its clock go on)."""
         if config.stage != self.stage:
             raise ValueError(f"stage must stay {self.stage} (got {config.stage})")
         sim = BatchedSimulation(config, num_envs=self.num_envs, seed=self.rng)
@@ -86,7 +87,7 @@ class BatchedSimulation:
         if sim.actuator is not None:
             sim.actuator.reset(sim.setpoints_fs)
         sim.step_count = self.step_count.copy()
-        sim.noise.walk = self.noise.offset
+        sim.noise.continue_from(self.noise)
         sim.last = self.last
         return sim
 
@@ -170,7 +171,7 @@ class BatchedSimulation:
             err = np.array(delay_errors_fs, dtype=np.float64).reshape(shape)
             if not np.isfinite(err).all():
                 raise ValueError("delay errors must be finite")
-            self.noise.walk = err - self.noise.mu
+            self.noise.place(err)
         self.last = self._measure(self.setpoints_fs.copy(), np.zeros(shape, bool), advance=False)
         return self.last
 
