@@ -282,7 +282,7 @@ def test_a_deferred_knot_test_answers_first_and_revises_the_command_after(seed):
 
 def test_a_deferred_knot_test_nobody_ran_runs_before_the_next_reading():
     """A loop that never calls ``think()`` still gets the knot test, one reading later: the
-    tracker holds extreme mode (the price of the late outcome, measured in docs/tracker.md)."""
+    tracker holds extreme mode (the price of the late outcome: docs/results/tracker/notes.md)."""
     powers, tracker, _ = run("extreme", 7, steps=400, think=False)
     after = powers[np.argmax(powers >= 0.95) :]
     assert tracker.knots >= 5

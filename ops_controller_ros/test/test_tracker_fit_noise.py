@@ -2,7 +2,7 @@
 their residuals from one reading to the next), and the detector is then taken as noisy. Taken as
 clean, an untold noise of 1e-3 (normalized slot energies) was read as knots: the first test's
 seeds took 59 / 72 / 47 false knots in 300 readings (hard mode has none) and held 79.5 / 81.6 /
-87.0 % of the readings >= 0.95 (docs/tracker.md)."""
+87.0 % of the readings >= 0.95 (docs/results/tracker/notes.md)."""
 
 from __future__ import annotations
 

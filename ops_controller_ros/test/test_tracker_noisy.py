@@ -1,6 +1,6 @@
 """Any noise the tracker is told of counts as noisy: a digitized trace however fine,
 the detector's noise, the source's pulse noise; and on a noisy detector the drift estimate moves
-slowly, so the noise does not walk it away (docs/tracker.md, "Any told noise is noisy")."""
+slowly, so the noise does not walk it away (docs/tracker.md, "Noise")."""
 
 from __future__ import annotations
 
