@@ -36,6 +36,7 @@ setup(
             "benchmark = ops_experiments.table1.benchmark:main",
             "report = ops_experiments.table1.report:main",
             "realism_sweep = ops_experiments.realism_sweep:main",
+            "distill = ops_experiments.distill:main",
         ],
     },
 )

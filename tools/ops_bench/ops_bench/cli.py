@@ -49,6 +49,7 @@ TOOLS: dict[str, Tool] = {
     "ship-model": Tool("ship_model", "ship a trained run as a model folder with its curve"),
     "reference-actions": Tool("reference_actions", "store a shipped model's reference actions"),
     "switch-model": Tool("switch_model", "a switching model: one policy acquires, one holds"),
+    "learning-curves": Tool("learning_curves", "training recipes on their learning curves"),
     "results": Tool(
         "results_pages", "the results pages (docs/results.md, its topics) from stored runs"
     ),

@@ -1,0 +1,340 @@
+"""``ros2 run ops_gym_bridge distill``: a student that sees only the rig's observation, taught by
+a privileged teacher with DAgger (Ross et al., 2011) on the batched simulator.
+
+The teacher (:mod:`.oracle`, recipe ``dagger-oracle``) reads the simulator's true delay errors and
+cancels them; the student is the actor of a stable-baselines3 SAC model (deterministic: tanh of
+its mean) on the rig's observation with memory (``--obs-history k``). Each round runs
+``--envs`` environments of :class:`~ops_sim_ros.vec_env.OpsVectorEnv` for one episode: at each
+step every environment takes the teacher's action with probability beta (1 in the first round,
+then ``--beta-decay`` times the last) and the student's otherwise, and every visited state is
+stored with the teacher's label; the actor is then fitted to all stored pairs (mean squared
+error of its deterministic action, ``--grad-steps`` Adam steps a round). So the student learns the
+teacher's answer on the states it reaches itself.
+
+Every ``--eval-every`` rounds the student runs 100 deterministic test-split episodes (seed
+``--eval-seed``); ``learning.csv`` records minutes, environment steps (every simulated step of
+collection; the oracle takes none) and the mean and worst final P_N / P_max. The model kept is
+the best of those evaluations (no episode below 0.8 first, then the mean), saved as a SAC model
+directory (``model.zip``, ``metadata.json`` as ``train`` writes it, with ``recipe`` and
+``training_wall_s``: wall seconds of the whole run) that ``evaluate``, the policy node and
+``train --init-from`` (an RL fine-tune) take unchanged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import cli_args
+from .oracle import teacher_labels
+
+RECIPES = ("dagger-oracle",)
+EVAL_EPISODES = 100
+
+
+@dataclass
+class Dataset:
+    """The aggregated (observation, label) pairs, a ring of ``capacity`` rows."""
+
+    capacity: int
+    obs_dim: int
+    act_dim: int
+    size: int = 0
+    head: int = 0
+    obs: np.ndarray = field(init=False)
+    labels: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.obs = np.zeros((self.capacity, self.obs_dim), dtype=np.float32)
+        self.labels = np.zeros((self.capacity, self.act_dim), dtype=np.float32)
+
+    def add(self, obs: np.ndarray, labels: np.ndarray) -> None:
+        n = obs.shape[0]
+        idx = (self.head + np.arange(n)) % self.capacity
+        self.obs[idx] = obs
+        self.labels[idx] = labels
+        self.head = int((self.head + n) % self.capacity)
+        self.size = min(self.size + n, self.capacity)
+
+    def sample(self, rng: np.random.Generator, batch: int) -> tuple[np.ndarray, np.ndarray]:
+        idx = rng.integers(0, self.size, size=batch)
+        return self.obs[idx], self.labels[idx]
+
+
+class Standardizer:
+    """The observation's per-value mean and std (of the first round's states): the student
+    learns on standardized inputs, and :meth:`folded` writes the standardization into the
+    actor's first layer for saving, so the saved SAC model takes the raw observation."""
+
+    def __init__(self, obs: np.ndarray) -> None:
+        self.mean = obs.mean(axis=0).astype(np.float32)
+        self.std = np.maximum(obs.std(axis=0), 1e-4).astype(np.float32)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return ((obs - self.mean) / self.std).astype(np.float32)
+
+    @contextmanager
+    def folded(self, actor):
+        """Within: the actor's first layer is W / std, b - W (mean / std) (raw inputs)."""
+        import torch
+
+        first = actor.latent_pi[0]
+        w, b = first.weight.data.clone(), first.bias.data.clone()
+        inv = torch.as_tensor(1.0 / self.std)
+        first.weight.data = w * inv
+        first.bias.data = b - (w * inv) @ torch.as_tensor(self.mean)
+        try:
+            yield
+        finally:
+            first.weight.data, first.bias.data = w, b
+
+
+def student_actions(actor, obs: np.ndarray, norm=None) -> np.ndarray:
+    """The actor's deterministic actions (tanh of its mean) for a batch of observations
+    (standardized by ``norm`` first, while the actor learns on standardized inputs)."""
+    import torch
+
+    x = obs if norm is None else norm(obs)
+    with torch.no_grad():
+        mean, _, _ = actor.get_action_dist_params(torch.as_tensor(x))
+        return torch.tanh(mean).numpy().astype(np.float64)
+
+
+def fit(actor, optimizer, data: Dataset, rng, steps: int, batch: int, norm) -> float:
+    """``steps`` Adam steps of the actor's deterministic action toward the labels; the mean
+    loss of the last tenth."""
+    import torch
+
+    losses = []
+    for _ in range(steps):
+        x, y = data.sample(rng, batch)
+        mean, _, _ = actor.get_action_dist_params(torch.as_tensor(norm(x)))
+        loss = torch.mean((torch.tanh(mean) - torch.as_tensor(y)) ** 2)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(float(loss.detach()))
+    tail = losses[-max(1, steps // 10) :]
+    return float(np.mean(tail)) if tail else float("nan")
+
+
+def evaluate_student(actor, env_kwargs: dict, seed: int, norm=None, episodes=EVAL_EPISODES):
+    """Final P_N / P_max of ``episodes`` deterministic test-split episodes (one batch)."""
+    from ops_sim_ros.vec_env import OpsVectorEnv
+
+    venv = OpsVectorEnv(num_envs=episodes, split="test", seed=seed, **env_kwargs)
+    obs, _ = venv.reset(seed=seed)
+    final = None
+    for _ in range(venv.config.episode_steps):
+        obs, _, _, trunc, info = venv.step(student_actions(actor, obs, norm))
+        if trunc.all():
+            final = np.asarray(info["final_info"]["power"], dtype=np.float64)
+    return final
+
+
+class Collector:
+    """The training environments (one episode per round, a rig drawn per round with
+    ``--rig-randomize``) and the teacher's labels of the states they visit."""
+
+    def __init__(self, args, env_kwargs: dict, rig_ranges) -> None:
+        from ops_sim_ros.vec_env import OpsVectorEnv
+
+        self.venv = OpsVectorEnv(num_envs=args.envs, split="train", seed=args.seed, **env_kwargs)
+        self.venv.reset(seed=args.seed)
+        self.base_config = self.venv.sim.config
+        self.rig_ranges = rig_ranges
+        self.rng = np.random.default_rng(args.seed + 1)
+        self.probe_steps = args.probe_steps
+        self.noise = args.action_noise
+        self.steps = 0
+
+    def round(self, actor, data: Dataset, beta: float, norm) -> float:
+        """One episode of every env; returns the mean final power of the round."""
+        sim = self.venv.sim
+        if self.rig_ranges:
+            sim.use_rig(self.base_config.replace(**self.rig_ranges.draw(self.rng)))
+        obs, _ = self.venv.reset()
+        final = np.nan
+        for _ in range(self.base_config.episode_steps):
+            labels = teacher_labels(sim, self.probe_steps)
+            data.add(obs, labels)
+            if beta >= 1.0:
+                act = labels
+            else:
+                act = student_actions(actor, obs, norm)
+                if self.noise > 0:
+                    act = np.clip(act + self.rng.normal(0.0, self.noise, act.shape), -1, 1)
+                teach = self.rng.random(act.shape[0]) < beta
+                act[teach] = labels[teach]
+            obs, _, _, trunc, info = self.venv.step(act)
+            self.steps += act.shape[0]
+            if trunc.all():
+                final = float(np.mean(info["final_info"]["power"]))
+        return final
+
+
+def build_student(args, out: Path):
+    """The SAC model (the student is its actor) built as ``train`` builds it."""
+    from .build import build_model
+
+    options = [
+        "--algo", "sac", "--hyperparams-set", "fast", "--stage", str(args.stage),
+        "--mode", args.mode, "--detector", args.detector, "--obs-history", str(args.obs_history),
+        "--seed", str(args.seed), "--torch-threads", str(args.torch_threads), "--n-envs", "1",
+        "--hyperparams", f"net_arch=[{args.width},{args.width}]",
+    ]  # fmt: skip
+    if args.realism:
+        options += ["--realism", args.realism]
+    if args.rig_randomize:
+        options += ["--rig-randomize", *args.rig_randomize]
+    return build_model(options, out)
+
+
+def env_kwargs_of(run) -> dict:
+    """The batched envs' arguments for the run's task (stage, mode, detector, observation, rig)."""
+    from .training_run import observation_options
+
+    a = run.args
+    return dict(
+        stage=a.stage,
+        mode=a.mode,
+        detector=a.detector,
+        max_episode_steps=a.episode_steps,
+        observation_options=observation_options(a),
+        **a.rig_config,
+    )
+
+
+def save_student(run, out: Path, argv: list[str], t0: float, extra: dict) -> None:
+    """The model directory (model.zip, metadata.json with recipe and training_wall_s)."""
+    from .learn import _save
+
+    wall = time.perf_counter() - t0
+    extra = {**extra, "training_wall_s": round(wall, 1)}
+    _save(out, run.args, run.params, run.model, run.venv, argv, wall, False, None, False, extra)
+
+
+def _score(mean: float, worst: float) -> tuple[bool, float]:
+    return (worst >= 0.8, mean)
+
+
+def train_loop(args, run, out: Path, argv: list[str], t0: float) -> dict:
+    """The DAgger rounds; returns the best evaluation's figures."""
+    import torch
+
+    actor = run.model.actor
+    actor.set_training_mode(True)
+    optimizer = torch.optim.Adam(actor.parameters(), lr=args.lr)
+    env_kwargs = env_kwargs_of(run)
+    collector = Collector(args, env_kwargs, run.args.rig_ranges)
+    obs_dim = int(np.prod(run.model.observation_space.shape))
+    data = Dataset(args.capacity, obs_dim, args.stage)
+    rng = np.random.default_rng(args.seed)
+    best: dict = {}
+    norm = None
+    curve = out / "learning.csv"
+    with curve.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["minutes", "env_steps", "test_final_power", "test_worst", "beta"])
+        for r in range(args.rounds):
+            beta = args.beta0 * args.beta_decay ** (r - 1) if r > 0 else 1.0
+            train_power = collector.round(actor, data, beta, norm)
+            if norm is None:
+                norm = Standardizer(data.obs[: data.size])
+            loss = fit(actor, optimizer, data, rng, args.grad_steps, args.batch, norm)
+            if (r + 1) % args.eval_every and r + 1 < args.rounds:
+                continue
+            final = evaluate_student(actor, env_kwargs, args.eval_seed, norm)
+            mean, worst = float(final.mean()), float(final.min())
+            minutes = (time.perf_counter() - t0) / 60.0
+            row = (f"{minutes:.2f}", collector.steps, f"{mean:.4f}", f"{worst:.4f}", f"{beta:.3f}")
+            writer.writerow(row)
+            fh.flush()
+            print(f"[distill] round {r + 1} steps {collector.steps} beta {beta:.3f} loss "
+                  f"{loss:.4f} train {train_power:.3f} test {mean:.4f} worst {worst:.4f} "
+                  f"({minutes:.1f} min)", flush=True)  # fmt: skip
+            if not best or _score(mean, worst) > _score(best["mean"], best["worst"]):
+                best = dict(mean=mean, worst=worst, round=r + 1, env_steps=collector.steps)
+                run.model.num_timesteps = collector.steps
+                with norm.folded(actor):
+                    save_student(run, out, argv, t0, _extra(args, best, collector.steps))
+            if minutes > args.max_minutes:
+                break
+    best["total_env_steps"] = collector.steps
+    return best
+
+
+def _extra(args, best: dict, steps: int) -> dict:
+    return {
+        "recipe": args.recipe,
+        "eval_final_power": best["mean"],
+        "eval_worst_final_power": best["worst"],
+        "eval_episodes": EVAL_EPISODES,
+        "dagger": {
+            "round": best["round"],
+            "env_steps": steps,
+            **{k: getattr(args, k) for k in DAGGER_KEYS},
+        },
+    }
+
+
+DAGGER_KEYS = (
+    "envs", "rounds", "beta0", "beta_decay", "grad_steps", "batch", "lr", "capacity",
+    "probe_steps", "action_noise", "width", "eval_seed",
+)  # fmt: skip
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = cli_args.make_parser("distill", __doc__.split("\n\n")[0])
+    p.add_argument("--recipe", choices=RECIPES, default="dagger-oracle")
+    p.add_argument("--stage", type=int, default=5)
+    p.add_argument("--mode", choices=("easy", "medium", "hard", "extreme"), default="hard")
+    p.add_argument("--detector", choices=("polarizer", "total"), default="polarizer")
+    p.add_argument("--obs-history", type=int, default=8, help="memory k of the observation")
+    p.add_argument("--realism", choices=("ideal", "lab"), default=None)
+    p.add_argument("--rig-randomize", nargs="+", default=None, metavar="KEY=LOW:HIGH",
+                   help="a rig drawn per round (all envs share it), as train's")  # fmt: skip
+    p.add_argument("--envs", type=int, default=256, help="batched environments")
+    p.add_argument("--rounds", type=int, default=200, help="DAgger rounds (one episode each)")
+    p.add_argument("--beta0", type=float, default=0.5, help="teacher share of round 2")
+    p.add_argument("--beta-decay", type=float, default=0.7, help="beta's factor per round")
+    p.add_argument("--grad-steps", type=int, default=1000, help="Adam steps per round")
+    p.add_argument("--batch", type=int, default=512)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--capacity", type=int, default=1_000_000, help="stored pairs (a ring)")
+    p.add_argument("--probe-steps", type=int, default=6, help="steps of the fixed probe")
+    p.add_argument("--action-noise", type=float, default=0.1, help="std on student actions")
+    p.add_argument("--width", type=int, default=256, help="hidden units (two layers)")
+    p.add_argument("--eval-every", type=int, default=3, help="rounds between evaluations")
+    p.add_argument("--eval-seed", type=int, default=1000)
+    p.add_argument("--max-minutes", type=float, default=60.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--torch-threads", type=int, default=1)
+    p.add_argument("--out", required=True, help="the model directory")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    raw = cli_args.strip_ros_args(list(sys.argv[1:] if argv is None else argv))
+    args = build_parser().parse_args(raw)
+    t0 = time.perf_counter()
+    out = Path(args.out).expanduser().resolve()
+    run = build_student(args, out)
+    command = ["ros2", "run", "ops_gym_bridge", "distill", *raw]
+    best = train_loop(args, run, out, command, t0)
+    wall = time.perf_counter() - t0
+    print(f"[distill] best: round {best.get('round')} test {best.get('mean', float('nan')):.4f} "
+          f"worst {best.get('worst', float('nan')):.4f}; {best['total_env_steps']} env steps, "
+          f"{wall / 60:.1f} min -> {out}", flush=True)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
