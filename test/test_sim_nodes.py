@@ -180,6 +180,9 @@ def test_bad_commands_are_rejected_and_the_state_kept(procs, observer):
         ("trace_adc_bits:=40", ["trace_adc_bits", "[0, 32]"]),
         ("actuator_hysteresis:=1.0", ["actuator_hysteresis", "[0.0, 0.99]"]),
         ("realism:=garage", ["realism", "ideal, lab", "garage"]),
+        ("time_base:=minutes", ["time_base", "step, seconds", "minutes"]),
+        ("step_s:=0.0", ["step_s", "[1e-05, 10.0]"]),
+        ("vibration:=loud", ["vibration", "none, lab", "loud"]),
     ],
 )
 def test_bad_parameters_stop_the_sim_before_it_spins(procs, param, words):
@@ -210,6 +213,23 @@ def test_parameters_change_live_and_stage_is_refused(procs, observer):
     assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
     bad = run_ros2("param", "set", "/ops_sim", "trace_adc_bits", "40")
     assert "trace_adc_bits" in bad.stdout + bad.stderr and "[0, 32]" in bad.stdout + bad.stderr
+    n = observer.count("power")
+    observer.wait_count("power", n + 5)  # still stepping
+
+
+def test_physical_time_changes_live_and_bad_values_are_refused(procs, observer):
+    start_sim(procs, "stage:=2", "time_base:=seconds", "rate_hz:=200", "vibration:=lab")
+    observer.wait_count("delays", 1)
+    for name, value, words in (
+        ("time_base", "minutes", ["time_base", "step, seconds"]),
+        ("step_s", "0.0", ["step_s", "[1e-05, 10.0]"]),
+        ("vibration", "loud", ["vibration", "none, lab"]),
+    ):
+        bad = run_ros2("param", "set", "/ops_sim", name, value)
+        for w in words:
+            assert w in bad.stdout + bad.stderr, (w, bad.stdout + bad.stderr)
+    ok = run_ros2("param", "set", "/ops_sim", "rate_hz", "100")
+    assert "Set parameter successful" in ok.stdout, ok.stdout + ok.stderr
     n = observer.count("power")
     observer.wait_count("power", n + 5)  # still stepping
 

@@ -23,9 +23,14 @@ from ops_contract.config import (
     REALISMS,
     RIG_KEYS,
     SPLITS,
+    TIME_KEYS,
     OpsConfig,
     make_config,
 )
+
+#: What ``--rig`` takes: the rig's figures and the keys of physical time (time_base, step_s,
+#: vibration), which the simulator runs and the controller is told of.
+RIG_OPTION_KEYS = (*RIG_KEYS, *TIME_KEYS)
 
 #: The environment options and their defaults (the defaults of OpsConfig).
 ENV_DEFAULTS: dict[str, Any] = {
@@ -156,7 +161,8 @@ def add_rig_arguments(parser: argparse.ArgumentParser, told: str) -> None:
         parser,
         "--rig",
         help=f"figures of the rig that the simulator runs AND {told} is told of (e.g. "
-        "latency_steps=2 trace_adc_bits=8): " + ", ".join(RIG_KEYS),
+        "latency_steps=2 trace_adc_bits=8; time_base=seconds step_s=0.01 for a 100 Hz loop in "
+        "physical time): " + ", ".join(RIG_OPTION_KEYS),
     )
 
 
@@ -209,10 +215,11 @@ def resolve_rig(realism: str | None, items: Iterable[str] | None) -> dict[str, A
     """The OpsConfig fields of ``--realism`` and ``--rig``, checked as make_config checks them
     (ValueError naming the figure and what it may be)."""
     rig = parse_key_values(items, "--rig figure")
-    unknown = sorted(set(rig) - set(RIG_KEYS))
+    unknown = sorted(set(rig) - set(RIG_OPTION_KEYS))
     if unknown:
         raise ValueError(
-            f"--rig {', '.join(unknown)}: not a figure of the rig; allowed: {', '.join(RIG_KEYS)}"
+            f"--rig {', '.join(unknown)}: not a figure of the rig; allowed: "
+            + ", ".join(RIG_OPTION_KEYS)
         )
     if realism is not None:
         rig["realism"] = realism

@@ -16,7 +16,16 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ops_contract.command_inbox import CommandInbox
-from ops_contract.config import DETECTORS, LIMITS, MAX_STAGE, MODES, SPLITS, make_config
+from ops_contract.config import (
+    DETECTORS,
+    LIMITS,
+    MAX_STAGE,
+    MODES,
+    SPLITS,
+    TIME_BASES,
+    VIBRATIONS,
+    make_config,
+)
 from ops_contract.node_params import (
     DIAGNOSTICS_PERIOD_SPEC,
     ParamSpec,
@@ -109,11 +118,43 @@ PARAMS = [
     ParamSpec(
         "latency_ms",
         -1.0,
-        "latency of a command in ms, as steps at rate_hz (rounded; overrides latency_steps; "
-        "-1: latency_steps)",
+        "latency of a command in ms, as steps of the loop (rate_hz; time_base seconds: "
+        "step_s) rounded; overrides latency_steps; -1: latency_steps",
         low=0.0,
         high=60000.0,
         special=(-1.0,),
+    ),
+    ParamSpec(
+        "actuator_lag_ms",
+        -1.0,
+        "the delay lines' response time in ms, as steps of the loop (as latency_ms); "
+        "overrides actuator_lag_steps; -1: actuator_lag_steps",
+        low=0.0,
+        high=60000.0,
+        special=(-1.0,),
+    ),
+    # Physical time (docs/physics.md, "Physical time and vibration").
+    ParamSpec(
+        "time_base",
+        "step",
+        "step: the paper's noise per step at any rate; seconds: the noise of step_s seconds "
+        "per step (a simulated second the same at any rate)",
+        choices=TIME_BASES,
+    ),
+    ParamSpec(
+        "step_s",
+        -1.0,
+        "the control period in s (-1: 1 / rate_hz under time_base seconds, the paper's 0.1 "
+        "under step)",
+        low=LIMITS["step_s"][0],
+        high=LIMITS["step_s"][1],
+        special=(-1.0,),
+    ),
+    ParamSpec(
+        "vibration",
+        "none",
+        "the delay lines' vibration in physical time: none, or lab (acoustic lines, 1/f floor)",
+        choices=VIBRATIONS,
     ),
 ]
 _SPECS = {p.name: p for p in PARAMS}
@@ -123,12 +164,39 @@ RATE_WINDOW_S = 2.0
 RATE_TOLERANCE = 0.9
 
 
+def _time_overrides(values: dict) -> dict:
+    """time_base, step_s and vibration, and the latency and lag given in ms as loop steps:
+    under time_base seconds a step lasts step_s (1 / rate_hz unless given), under step
+    1 / rate_hz of wall time."""
+    out = {"time_base": values["time_base"], "vibration": values["vibration"]}
+    step_s = values["step_s"]
+    if values["time_base"] == "seconds":
+        period = step_s if step_s != -1.0 else 1.0 / values["rate_hz"]
+        low, high = LIMITS["step_s"]
+        if not low <= period <= high:
+            raise ParameterError(
+                f"step_s must be from {low:g} to {high:g} s under time_base seconds (got "
+                f"{period:g}" + (f" from rate_hz {values['rate_hz']:g})" if step_s == -1.0 else ")")
+            )
+        out["step_s"] = period
+    elif step_s != -1.0:
+        out["step_s"] = step_s
+    if values["latency_ms"] >= 0.0:
+        if values["time_base"] == "seconds":
+            out["latency_steps"] = round(values["latency_ms"] / 1000.0 / out["step_s"])
+        else:
+            out["latency_steps"] = round(values["latency_ms"] * values["rate_hz"] / 1000.0)
+    if values["actuator_lag_ms"] >= 0.0:
+        period = out["step_s"] if values["time_base"] == "seconds" else 1.0 / values["rate_hz"]
+        out["actuator_lag_steps"] = values["actuator_lag_ms"] / 1000.0 / period
+    return out
+
+
 def config_from_params(values: dict):
     """The validated OpsConfig for a set of parameter values (ParameterError if impossible)."""
     overrides = {name: values[name] for name, _ in _CONFIG_OVERRIDES if values[name] >= 0.0}
     overrides.update({name: values[name] for name in RIG_PARAM_KEYS if values[name] != -1})
-    if values["latency_ms"] >= 0.0:
-        overrides["latency_steps"] = round(values["latency_ms"] * values["rate_hz"] / 1000.0)
+    overrides.update(_time_overrides(values))
     try:
         return make_config(
             stage=values["stage"],
@@ -181,6 +249,8 @@ class SimNode(Node):
         self.get_logger().info(
             f"stage={self._config.stage} mode={self._config.mode} split={self._config.split} "
             f"detector={self._config.detector} realism={self._config.realism} seed={self.seed} "
+            f"time_base={self._config.time_base} step_s={self._config.step_s:g} "
+            f"vibration={self._config.vibration} "
             + ("lockstep" if self._values["lockstep"] else f"rate={self._values['rate_hz']} Hz")
         )
         self._publish()
@@ -251,6 +321,9 @@ class SimNode(Node):
                 ("mode", self._config.mode),
                 ("split", self._config.split),
                 ("detector", self._config.detector),
+                ("time_base", self._config.time_base),
+                ("step_s", f"{self._config.step_s:g}"),
+                ("vibration", self._config.vibration),
                 ("lockstep", self._values["lockstep"]),
                 ("step", self._steps),
                 ("episode", self._episodes),

@@ -56,7 +56,7 @@ PRESETS = {
         lines=(
             (14.6, 0.015),  # the floor's structural mode, left after the isolators
             (29.5, 0.015),  # an air handler's fan or a pump motor (1770 rpm)
-            (100.0, 0.010),  # twice the 50 Hz mains: transformer and motor hum, acoustic
+            (120.0, 0.010),  # twice the 60 Hz mains (100 Hz on 50 Hz): transformer and motor hum
             (230.0, 0.012),  # a mirror mount's resonance on its post, driven acoustically
             (470.0, 0.006),  # a second mount resonance
         ),
