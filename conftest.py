@@ -1,8 +1,9 @@
 """Fixtures of every test folder (packages' test/ and the integration tests in test/).
 
-Isolation: each test module gets its own ROS_DOMAIN_ID (unique within this pytest process, and
-offset by the pid so that two test runs on one machine rarely meet), and DDS discovery is kept on
-localhost. ``procs`` starts commands the way a user would (``ros2 run``) and stops every one of
+Isolation: each test module gets its own ROS_DOMAIN_ID, and DDS discovery is kept on localhost.
+Under pytest-xdist (``make test`` runs ``-n auto``) each worker draws from a slice of the domains
+of its own, so two workers never share one; within a slice the modules take turns, offset by the
+pid so that two test runs on one machine rarely meet. ``procs`` starts commands the way a user would (``ros2 run``) and stops every one of
 them (SIGINT, then SIGKILL) when the test ends; see ops_bench.processes (tools/ops_bench).
 """
 
@@ -15,11 +16,16 @@ import pytest
 from ops_bench.processes import ProcessGroup
 
 _domains = itertools.count()
+#: Domains 1..100 (0, the default, is left to whatever else runs on the machine), cut into one
+#: slice per xdist worker (PYTEST_XDIST_WORKER "gw3", PYTEST_XDIST_WORKER_COUNT).
+DOMAINS = 100
 
 
 def _domain_for_next_module() -> int:
-    # Domains 1..100; 0 (the default) is left to whatever else runs on the machine.
-    return 1 + (os.getpid() * 7 + 13 * next(_domains)) % 100
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
+    size = DOMAINS // max(workers, 1)
+    return 1 + worker * size + (os.getpid() * 7 + 13 * next(_domains)) % size
 
 
 @pytest.fixture(scope="module", autouse=True)
