@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Table 1 with both observation sets (issue 19): the quick profile with the authors' detector,
+# Table 1 with both observation sets: the quick profile with the authors' detector,
 # agents on the authors' observation with the authors' code's hyper-parameters
 # (docs/results/n5_quick_authors_hp: the paper's Table 1 as the authors' code made it), then with
 # the paper's tables' hyper-parameters on the authors' observation (docs/results/n5_quick_authors)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 32, item 4 ("Learning on the rig"): a model for N = 5, hard mode, trained on the `lab`
+# Learning on the rig: a model for N = 5, hard mode, trained on the `lab`
 # rig with every episode's rig drawn anew (train --rig-randomize lab: latency 0-2 steps and the
 # other imperfections over their ranges; docs/physics.md, "A rig drawn per episode") and with
 # held decisions (train --hold-steps auto: each training step is one decision, held for the
@@ -7,7 +7,7 @@
 # docs/physics.md, "Learned policies under latency: held decisions").
 #
 #   scripts/train_lab.sh            # starts the run, or resumes it: run it again every session
-#   MINUTES=50 TOTAL=9000000 OUT=runs/issue32/n5_hard_lab_cw2 scripts/train_lab.sh
+#   MINUTES=50 TOTAL=9000000 OUT=runs/lab/n5_hard_lab_cw2 scripts/train_lab.sh
 #
 # Each call trains for MINUTES of wall time (default 50), saves, and exits 0; the next call
 # resumes (replay buffer, step count, hold and DIR/best carry over) until the model has TOTAL
@@ -25,11 +25,11 @@
 # last model of the from-scratch run and its best (best/); go on from either with a fresh
 # buffer and the run's own learning rate:
 #   INIT=docs/results/lab_training/n5_hard_lab_scratch_k8 TUNE="--hyperparams learning_starts=20000" \
-#       OUT=runs/issue32/n5_hard_lab_k8_next MINUTES=150 EVAL_FREQ=100000 scripts/train_lab.sh
+#       OUT=runs/lab/n5_hard_lab_k8_next MINUTES=150 EVAL_FREQ=100000 scripts/train_lab.sh
 #
 # The long-run recipe of models/n5_hard_long (set-points against a whole-cycle reference, runs
 # that carry on three times in four), on the rig, from the shipped lab model:
-#   INIT=models/n5_hard_lab OUT=runs/issue32/n5_hard_lab_long MINUTES=150 EVAL_FREQ=100000 \
+#   INIT=models/n5_hard_lab OUT=runs/lab/n5_hard_lab_long MINUTES=150 EVAL_FREQ=100000 \
 #       TUNE="--hyperparams learning_rate=0.0003 learning_starts=20000 --setpoint-window 1 \
 #       --continue-prob 0.75" scripts/train_lab.sh
 #
@@ -39,17 +39,16 @@
 # buffer with that many steps of its own actions, without updating; and critic_warmup 100,000:
 # then only the critic learns, the actor and its entropy coefficient held). INIT= (empty)
 # trains from scratch with the same options (OBS_HISTORY frames of memory, default 4).
-# HOLD=auto (default) trains with held decisions; HOLD= (empty) without. Earlier runs, kept
-# under runs/issue32: n5_hard_lab (no hold: 0.04 after 320,000 steps), n5_hard_lab_held (hold,
-# learning rate 3e-4, no warm buffer: 0.715 on the 100 episodes above), n5_hard_lab_warm (warm
-# buffer: its rollouts fell 0.85 -> 0.69 as the actor followed the old critic) and
-# n5_hard_lab_cw (critic warm-up with a free entropy coefficient: 0.83 -> 0.13 when the actor
-# was released). Models of the authors' observation are no start
+# HOLD=auto (default) trains with held decisions; HOLD= (empty) without. Why these defaults:
+# without a hold the run stayed at 0.04 after 320,000 steps; without a warm buffer the rollouts
+# fell as the actor followed the old critic; with a free entropy coefficient during the critic
+# warm-up the actor turned random when released (docs/results/lab_training/notes.md has the
+# runs). Models of the authors' observation are no start
 # here: it holds the actual delay-line lengths, which no rig measures (models/README.md).
 cd "$(dirname "$0")/.."
 source setup.bash >/dev/null
 set -euo pipefail
-OUT=${OUT:-runs/issue32/n5_hard_lab_cw2}
+OUT=${OUT:-runs/lab/n5_hard_lab_cw2}
 MINUTES=${MINUTES:-50}
 TOTAL=${TOTAL:-9000000}
 INIT=${INIT-models/n5_hard}
