@@ -15,7 +15,7 @@ one before. Held readings never reach it (measured: fed every reading, held ones
 action, the same hold leaves n5_hard at 0.06 under one step of latency, against 0.83).
 
 One declaration, used by ``evaluate --hold-steps`` and the ``policy`` node's ``hold_steps``
-parameter (both through :func:`~ops_controller_ros.policy_switch.make_runner`, which puts the
+parameter (both through :mod:`ops_controller_ros.runner_factory`, which puts the
 :class:`HeldRunner` outside a switching model and a re-acquiring watchdog, so their readings
 are the decisions' too): 1 (the default) decides on every reading, as before; k from 2 to
 :data:`HOLD_STEPS_MAX` on one reading in k; 0 (``auto``) on one in ``latency_steps`` + 1 of the
@@ -25,9 +25,8 @@ no rclpy, no torch.
 
 A model trained with held decisions (``train --hold-steps``: the environments' side of the same
 hold, :mod:`ops_contract.held`, which declares the values) records its ``hold_steps`` in its
-metadata (0 for auto); ``evaluate`` and the policy node hold it so by default
-(:func:`model_hold_steps`; an explicit value overrides, and a model without the entry decides on
-every reading).
+metadata (0 for auto; ``PolicyMeta.hold_steps``); ``evaluate`` and the policy node hold it so by
+default (an explicit value overrides, and a model without the entry decides on every reading).
 """
 
 from __future__ import annotations
@@ -55,15 +54,8 @@ HOLD_STEPS_HELP = (
 )
 
 
-def model_hold_steps(metadata: dict) -> int:
-    """The readings per decision a model was trained with (``hold_steps`` of its metadata,
-    ``train --hold-steps``: 0 for auto; 1 where absent, as every model from before the option);
-    ValueError for a value that is not allowed."""
-    return check_hold_steps(metadata.get(HOLD_STEPS, HOLD_STEPS_DEFAULT))
-
-
 class HeldRunner(RunnerWrapper):
-    """A runner (``act``, ``restart``, ``took``, ``spec``, ``policy``: a
+    """A runner (``act``, ``restart``, ``took``, ``reset_state``, ``spec``, ``policy``: a
     :class:`~ops_controller_ros.policy_io.PolicyRunner`, a switching model or a watchdog) that
     decides on the first reading and then on one in ``hold_steps``; on the others :meth:`act`
     returns zeros (increment 0: the command held) and the wrapped runner is not called, so its

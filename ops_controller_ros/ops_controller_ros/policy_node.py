@@ -1,38 +1,49 @@
 """The learned-policy runner ``ops_policy``: a trained stable-baselines3 model closing the loop.
 
-``ros2 run ops_controller_ros policy --ros-args -p model:=DIR`` loads ``DIR/model.zip`` and the
-metadata saved beside it by training, builds each observation with the same builder as the
-in-process environment (``ops_contract.observation.ObservationBuilder``, through
-``policy_io.PolicyRunner``; a model trained with memory gets its last observations and actions,
-the history starting at the node's first reading) from the simulator's trace, power and
-set-points, and publishes new set-points: the reading's set-points + action * max step (the only
-action type ``ops_controller_ros.policy_io`` loads is "increment"). A switching model (one policy
-acquires, another holds: ``ops_controller_ros.policy_switch``) runs both on every reading and
-logs which one acts. A model whose metadata has a ``reacquire`` entry runs inside the
-re-acquiring watchdog (``ops_controller_ros.reacquire``: a stack lost for ``patience`` readings
-is kicked to a fresh point), as ``evaluate`` runs it; the progress line counts its kicks.
-``hold_steps`` (k > 1, or 0: the told ``latency_steps`` + 1) makes the policy decide on one
-reading in k and hold its command on the others, seeing only the readings it decides on
-(``ops_controller_ros.policy_hold``, as ``evaluate --hold-steps`` runs it): a model trained
-without latency on a rig with one. By default (-1) the node holds the model as it was trained
-(its metadata's ``hold_steps``, ``train --hold-steps``; every reading for a model without).
+``ros2 run ops_controller_ros policy --ros-args -p model:=DIR`` builds the model's runner with
+:func:`ops_controller_ros.runner_factory.load_model` (``DIR/model.zip`` and the metadata saved
+beside it by training, read once), builds each observation with the same builder as the
+in-process environment (``ops_contract.observation.ObservationBuilder``; a model trained with
+memory gets its last observations and actions, a recurrent one its state, from the node's first
+reading) from the simulator's trace, power and set-points, and publishes new set-points: the
+reading's set-points + action * max step (the only action type is "increment"). A switching
+model (one policy acquires, another holds: ``ops_controller_ros.policy_switch``) runs both on
+every reading and logs which one acts. A model whose metadata has a ``reacquire`` entry runs
+inside the re-acquiring watchdog (``ops_controller_ros.reacquire``: a stack lost for
+``patience`` readings is kicked to a fresh point), as ``evaluate`` runs it; the progress line
+counts its kicks. ``hold_steps`` (k > 1, or 0: the told ``latency_steps`` + 1) makes the policy
+decide on one reading in k and hold its command on the others, seeing only the readings it
+decides on (``ops_controller_ros.policy_hold``, as ``evaluate --hold-steps`` runs it): a model
+trained without latency on a rig with one. By default (-1) the node holds the model as it was
+trained (its metadata's ``hold_steps``, ``train --hold-steps``; every reading for a model
+without).
 
 The loop is every controller node's (:class:`~ops_controller_ros.loop_node.ControllerLoopNode`):
 readings paired with their command and their own step's trace by sequence number, re-sends, the
-steps between readings counted, ``ops/controller/status``. A model trained for another stage
-than the simulator runs stops the node with a clear error (exit code 1). The rig (``realism`` and
-its figures, as the simulator node takes them) is every controller node's parameter: a policy is
-not built from a model, so the node checks the values and warns where they differ from the rig
-the model was trained on.
+steps between readings counted, ``ops/controller/status``.
+
+A model the node cannot run is refused with what differs: at start (exit code 2, before the
+node spins) a missing or malformed model directory, a recipe, observation or recurrent state
+the runner does not know, another observation set than ``observation``, another detector than
+``detector`` (or the rig file's) and another stage than the rig file's; once the simulator is
+found, another stage than it runs (exit code 1). ``model`` may change while the node runs
+(``ros2 param set /ops_policy model DIR``): the new model is checked the same way (against the
+running simulator's stage) and, if refused, the parameter keeps its value and the node goes on
+with its old model; if taken, the loop carries on from the present set-points with the new
+runner (a new history). The rig (``realism`` and its figures, as the simulator node takes them)
+is every controller node's parameter: a policy is not built from a model, so the node checks the
+values and warns where they differ from the rig the model was trained on.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from ops_contract.node_params import ParamSpec
+from ops_contract.node_params import ParamSpec, declare_all
 from ops_contract.observation import OBSERVATION_SETS
+from ops_contract.policy_meta import DETECTORS, PolicyLoadError, check_asked
 from ops_contract.rig_params import RIG_PARAM_KEYS
 from ops_contract.ros_interface import NodeFatalError, ParameterError, run_node
+from rcl_interfaces.msg import SetParametersResult
 
 from .loop_node import ControllerLoopNode
 from .policy_hold import (
@@ -43,21 +54,33 @@ from .policy_hold import (
     HOLD_STEPS_MAX,
     HOLD_STEPS_MODEL,
     HeldRunner,
-    model_hold_steps,
-    resolve_hold_steps,
 )
-from .policy_io import PolicyLoadError, check_observation, check_stage, load_policy
-from .policy_switch import SwitchingRunner, make_runner
+from .policy_switch import SwitchingRunner
 from .reacquire import ReacquireWatchdog
+from .runner_factory import ModelStack, load_model
+from .runner_wrapper import find_layer
 
+#: The model: the one parameter that may change while the node runs (checked like at start).
+MODEL = ParamSpec(
+    "model",
+    "",
+    "trained model: the training output DIR or DIR/model.zip; may change while the node runs "
+    "(a model the node cannot run is refused, and the old one goes on)",
+)
 PARAMS = [
-    ParamSpec("model", "", "trained model: the training output DIR or DIR/model.zip"),
     ParamSpec(
         "observation",
         "rig",
         "observation set the model was trained on: rig (measurable on a real stacker) or "
         "authors (needs the simulator's ops/delays_actual oracle)",
         choices=OBSERVATION_SETS,
+        read_only=True,
+    ),
+    ParamSpec(
+        "detector",
+        "",
+        "the rig's detector (polarizer or total): a model trained for another is refused; "
+        "'' (default): the rig file's (rig_config), else not checked",
         read_only=True,
     ),
     ParamSpec(
@@ -105,6 +128,12 @@ class PolicyController:
         self._command = self._command + delta
         self._moved = self._moved + delta
 
+    def with_runner(self, runner, max_step_fs: float) -> PolicyController:
+        """Another model's controller, carrying on from this one's command (and its moves)."""
+        ctl = PolicyController(runner, max_step_fs, self._command)
+        ctl._moved = self._moved.copy()
+        return ctl
+
     def observe(
         self, power: float, pulse_energies, steps: int = 1, applied=None, command_age=None
     ) -> None:
@@ -118,72 +147,91 @@ class PolicyController:
         self.last_power = float(power)
 
 
-def _load(model: str, observation: str, hold_steps: int = 1, latency_steps: int = 0):
-    """(policy, runner, resolved hold) of the model; ``hold_steps`` as the parameter takes it
-    (-1: the model's, 0: auto against ``latency_steps``)."""
-    if not model:
-        raise ParameterError(
-            "model must be the path of a trained model (the training output directory or "
-            "its model.zip), e.g. --ros-args -p model:=runs/sac_n3_easy"
-        )
-    try:
-        policy = load_policy(model)
-        asked = model_hold_steps(policy.metadata) if hold_steps == HOLD_STEPS_MODEL else hold_steps
-        hold = resolve_hold_steps(asked, latency_steps)
-        runner = make_runner(policy, hold_steps=hold)
-        check_observation(policy.metadata, observation, "-p observation:=")
-    except PolicyLoadError as exc:
-        raise ParameterError(f"model: {exc}") from None
-    return policy, runner, hold
-
-
 class PolicyNode(ControllerLoopNode):
     def __init__(self):
         super().__init__("ops_policy", PARAMS)
-        latency = self.nominal_model().latency_steps  # the told rig's (any stage)
-        policy, runner, hold = _load(
-            self.values["model"], self.values["observation"], self.values[HOLD_STEPS], latency
-        )
-        self._policy, self._runner = policy, runner
-        self._check_rig(policy)
-        if runner.spec.needs_applied_delays:
-            self.use_applied_delays()
-        if isinstance(runner, HeldRunner):
-            self.get_logger().info(
-                f"the policy decides on one reading in {hold} and holds its command on the "
-                f"others ({HOLD_STEPS}={self.values[HOLD_STEPS]}"
-                + (
-                    f": the model's, {policy.metadata.get(HOLD_STEPS)}"
-                    if self.values[HOLD_STEPS] == HOLD_STEPS_MODEL
-                    else ""
-                )
-                + f", told latency_steps={latency})"
+        self.values.update(declare_all(self, [MODEL], on_change=self._on_model_change))
+        self._latency = self.nominal_model().latency_steps  # the told rig's (any stage)
+        detector = self.values["detector"]
+        if detector and detector not in DETECTORS:
+            raise ParameterError(
+                f"detector must be '' or one of {', '.join(DETECTORS)} (got {detector!r})"
             )
-        inner = runner.runner if isinstance(runner, HeldRunner) else runner
-        inner = inner.runner if isinstance(inner, ReacquireWatchdog) else inner
-        if isinstance(inner, SwitchingRunner):
-            self.get_logger().info(
-                f"switching model: {inner.acquire.policy.path} acquires, the model in "
-                f"{policy.path} holds ({inner.params})"
-            )
-        if isinstance(runner, ReacquireWatchdog):
-            self.get_logger().info(
-                f"re-acquiring watchdog on (the model's 'reacquire' entry): {runner.params}"
-            )
-        self.get_logger().info(
-            f"loaded {policy.algo.upper()} model for stage {policy.stage} "
-            f"({policy.mode} mode, observation {runner.spec.describe()}) from "
-            f"{policy.path}; waiting for the simulator"
-        )
+        rig = self.rig_model
+        self._detector = detector or (rig.optics["detector"] if rig is not None else None)
+        self._stack: ModelStack | None = None
+        self._runner = None
+        self._use(self._load(self.values["model"]))
+        self.get_logger().info("waiting for the simulator")
 
-    def _check_rig(self, policy) -> None:
+    def _load(self, model: str) -> ModelStack:
+        """The model checked against what the node is told (module docstring): ParameterError
+        naming what differs."""
+        if not model:
+            raise ParameterError(
+                "model must be the path of a trained model (the training output directory or "
+                "its model.zip), e.g. --ros-args -p model:=runs/sac_n3_easy"
+            )
+        stage, source = None, "the simulator"
+        if self.ctrl is not None:
+            stage = self.ctrl.stage
+        elif self.rig_model is not None:
+            stage, source = self.rig_model.stage, f"the rig file {self.values['rig_config']}"
+        hold = self.values[HOLD_STEPS]
+        try:
+            return load_model(
+                model,
+                stage=stage,
+                detector=self._detector,
+                observation=self.values["observation"],
+                hold_steps=None if hold == HOLD_STEPS_MODEL else hold,
+                latency_steps=self._latency,
+                source=source,
+                observation_flag="-p observation:=",
+            )
+        except PolicyLoadError as exc:
+            raise ParameterError(f"model: {exc}") from None
+
+    def _use(self, stack: ModelStack) -> None:
+        """Run ``stack``'s model from now on (a running loop goes on from its command)."""
+        self._stack, self._runner = stack, stack.build()
+        self._check_rig(stack)
+        if self._runner.spec.needs_applied_delays and not self._applied_delays:
+            self.use_applied_delays()
+        if self.ctrl is not None:
+            self.ctrl = self.ctrl.with_runner(self._runner, stack.meta.max_step_fs)
+        if stack.hold_steps != 1:
+            asked = self.values[HOLD_STEPS]
+            model = stack.meta.entries.get(HOLD_STEPS)
+            self.get_logger().info(
+                f"the policy decides on one reading in {stack.hold_steps} and holds its command "
+                f"on the others ({HOLD_STEPS}={asked}"
+                + (f": the model's, {model}" if asked == HOLD_STEPS_MODEL else "")
+                + f", told latency_steps={self._latency})"
+            )
+        for line in stack.describe():
+            self.get_logger().info(line)
+
+    def _on_model_change(self, params) -> SetParametersResult:
+        """``model`` set while the node runs: the new model if the node can run it, else
+        refused with why (the old one goes on)."""
+        for p in params:
+            try:
+                stack = self._load(p.value)
+            except ParameterError as exc:
+                self.get_logger().warning(f"{exc}; the node goes on with {self._stack.path}")
+                return SetParametersResult(successful=False, reason=str(exc))
+            self._use(stack)
+        return SetParametersResult(successful=True)
+
+    def _check_rig(self, stack: ModelStack) -> None:
         """Say where the rig this node is told of differs from the one the model was trained
         on (a learned policy is not built from a model: it acts on its observations alone); a
         figure inside the ranges the model's training drew its rigs from (``rig_randomize``)
         counts as trained on."""
-        trained = dict(policy.metadata.get("config") or {})
-        ranges = dict(policy.metadata.get("rig_randomize") or {})
-        told = self.nominal_model(stage=policy.stage).to_dict()
+        trained = stack.meta.config
+        ranges = dict(stack.meta.entries.get("rig_randomize") or {})
+        told = self.nominal_model(stage=stack.meta.stage).to_dict()
         keys = ("realism", *RIG_PARAM_KEYS)
 
         def drawn(k) -> bool:
@@ -202,30 +250,30 @@ class PolicyNode(ControllerLoopNode):
 
     def build_controller(self, delays, samples_per_slot):
         try:
-            check_stage(self._policy, delays.size)
+            check_asked(self._stack.meta, stage=delays.size)
         except PolicyLoadError as exc:
             raise NodeFatalError(str(exc)) from None
         self.get_logger().info("simulator found: running the policy")
-        return PolicyController(self._runner, self._policy.max_step_fs, delays)
+        return PolicyController(self._runner, self._stack.meta.max_step_fs, delays)
 
     def progress(self) -> str:
         return f"step {self.readings}"
 
     def progress_note(self) -> str:
-        r = self._runner
         notes = []
-        if isinstance(r, HeldRunner):
-            notes.append(f"{r.decisions} decisions since start")
-            r = r.runner
-        if isinstance(r, ReacquireWatchdog):
-            kicking = ", kicking" if r.kicking else ""
-            notes.append(f"{r.kicks} re-acquiring kicks since start{kicking}")
-            r = r.runner
-        if isinstance(r, SwitchingRunner):
-            acting = "holding policy acts" if r.holding else "acquiring policy acts"
-            if r.holder_acts and not r.holding:
+        held = find_layer(self._runner, HeldRunner)
+        if held is not None:
+            notes.append(f"{held.decisions} decisions since start")
+        watchdog = find_layer(self._runner, ReacquireWatchdog)
+        if watchdog is not None:
+            kicking = ", kicking" if watchdog.kicking else ""
+            notes.append(f"{watchdog.kicks} re-acquiring kicks since start{kicking}")
+        switch = find_layer(self._runner, SwitchingRunner)
+        if switch is not None:
+            acting = "holding policy acts" if switch.holding else "acquiring policy acts"
+            if switch.holder_acts and not switch.holding:
                 acting = "holding policy searches in turn"
-            notes.insert(0, f"{acting}; {r.switches} hand-overs since start")
+            notes.insert(0, f"{acting}; {switch.switches} hand-overs since start")
         return f" ({'; '.join(notes)})" if notes else ""
 
 

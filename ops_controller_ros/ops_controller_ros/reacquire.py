@@ -1,12 +1,12 @@
 """A watchdog that re-acquires a lost stack: a learned policy that lost the stack is kicked to a
 fresh point of the landscape and searches again.
 
-Measured (issue 32): a learned policy that loses the stack in a 200-step episode rarely finds
-it again within the episode (it sits on a side peak or a flat stretch, its actions near zero),
-and those episodes end near zero. The watchdog wraps any runner (a plain
-:class:`~ops_controller_ros.policy_io.PolicyRunner` or a
-:class:`~ops_controller_ros.policy_switch.SwitchingRunner`) with the same interface and acts
-on the readings alone (P_N / P_max, no model of the rig):
+Measured (models/README.md, "No catastrophic episode"): a learned policy that loses the stack in
+a 200-step episode rarely finds it again within the episode (it sits on a side peak or a flat
+stretch, its actions near zero), and those episodes end near zero. The watchdog wraps any runner
+(a plain :class:`~ops_controller_ros.policy_io.PolicyRunner` or a
+:class:`~ops_controller_ros.policy_switch.SwitchingRunner`) with the same interface and acts on
+the readings alone (P_N / P_max, no model of the rig):
 
 * it counts the readings in a row below ``good_power``; a reading at or above it resets the
   count, so a stack at or above ``good_power`` is never kicked;
@@ -17,68 +17,23 @@ on the readings alone (P_N / P_max, no model of the rig):
 * then the policy acts again; its memory holds the kick's actions (:meth:`took`), as the
   switching model's policies hold each other's. The count starts again after the kick.
 
-The figures (``WatchdogParams``) are declared once here; a model directory turns the watchdog
-on with a ``reacquire`` entry in its ``metadata.json`` (absent: off; an empty object: these
-defaults), e.g.::
+The figures (:class:`~ops_contract.policy_layers.WatchdogParams`) are declared with the
+metadata's schema; a model directory turns the watchdog on with a ``reacquire`` entry in its
+``metadata.json`` (absent: off; an empty object: the defaults), e.g.::
 
     "reacquire": {"good_power": 0.8, "patience": 50, "kick_steps": 5, "seed": 0}
 
-:func:`~ops_controller_ros.policy_switch.make_runner` wraps the model's runner in one, so the
-``policy`` node and ``evaluate`` run the same watchdog. Pure numpy: no rclpy, no torch.
+:mod:`ops_controller_ros.runner_factory` wraps the model's runner in one, so the ``policy`` node
+and ``evaluate`` run the same watchdog. A kick also starts the policy's recurrent state afresh,
+if it has one (the stack is lost: a new search). Pure numpy: no rclpy, no torch.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
-
 import numpy as np
+from ops_contract.policy_layers import REACQUIRE_KEY, WatchdogParams  # noqa: F401
 
 from .runner_wrapper import RunnerWrapper
-
-REACQUIRE_KEY = "reacquire"
-
-
-@dataclass(frozen=True)
-class WatchdogParams:
-    """When the watchdog kicks and how far (readings of P_N / P_max; steps of the actuator)."""
-
-    # A reading at or above this is "the stack found": it resets the count (never kicked).
-    good_power: float = 0.8
-    # Readings in a row below good_power before a kick (from the start, the last good reading
-    # or the end of the last kick). patience and kick_steps were chosen on tuning seeds
-    # (7001-7020, models/README.md "No catastrophic episode"): longer kicks (15-40 steps)
-    # made the rig-observation models worse, since they read absolute set-points.
-    patience: int = 50
-    # Readings during which a kick applies the largest step in its random direction.
-    kick_steps: int = 5
-    # Seed of the kicks' directions (one generator per runner: reproducible evaluations).
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        checks = (
-            ("good_power", 0.0 < self.good_power <= 1.0, "in (0, 1]"),
-            ("patience", self.patience >= 1, ">= 1"),
-            ("kick_steps", self.kick_steps >= 1, ">= 1"),
-            ("seed", self.seed >= 0, ">= 0"),
-        )
-        for name, ok, allowed in checks:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not ok or not math.isfinite(value):
-                raise ValueError(f"reacquire {name} must be {allowed} (got {value!r})")
-        for name in ("patience", "kick_steps", "seed"):
-            if int(getattr(self, name)) != getattr(self, name):
-                raise ValueError(
-                    f"reacquire {name} must be an integer (got {getattr(self, name)!r})"
-                )
-
-    @classmethod
-    def from_dict(cls, data: dict) -> WatchdogParams:
-        """From a metadata entry; unknown keys (a note, say) are ignored."""
-        if not isinstance(data, dict):
-            raise ValueError(f"the '{REACQUIRE_KEY}' entry must be an object (got {data!r})")
-        known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in known})
 
 
 class ReacquireWatchdog(RunnerWrapper):
@@ -90,13 +45,14 @@ class ReacquireWatchdog(RunnerWrapper):
     def __init__(self, runner, params: WatchdogParams | None = None, num_envs: int | None = None):
         super().__init__(runner, num_envs)
         self.params = params or WatchdogParams()
-        self._rng = np.random.default_rng(self.params.seed)
         self.kicks = 0
         self.restart()
 
     def restart(self) -> None:
-        """A new start (the simulator reset): counts cleared, no kick under way."""
+        """A new start (the simulator reset): counts cleared, no kick under way, the kicks'
+        directions drawn anew from the seed."""
         self.runner.restart()
+        self._rng = np.random.default_rng(self.params.seed)
         self._low = np.zeros(self._n, dtype=int)
         self._kick_left = np.zeros(self._n, dtype=int)
         self._direction = np.zeros((self._n, self.spec.stage), dtype=np.float32)
@@ -121,6 +77,7 @@ class ReacquireWatchdog(RunnerWrapper):
             self._kick_left[start] = p.kick_steps
             self._low[start] = 0
             self.kicks += int(np.count_nonzero(start))
+            self.runner.reset_state(start)
         kicking = self._kick_left > 0
         action[kicking] = self._direction[kicking]
         self._kick_left = np.where(kicking, self._kick_left - 1, 0)
@@ -128,11 +85,3 @@ class ReacquireWatchdog(RunnerWrapper):
         if kicking.any():
             self.runner.took(out)
         return out
-
-
-def watchdog_params_of(metadata: dict) -> WatchdogParams | None:
-    """The watchdog a model's metadata asks for (None: no ``reacquire`` entry, off).
-    ValueError for a malformed entry."""
-    if REACQUIRE_KEY not in metadata:
-        return None
-    return WatchdogParams.from_dict(metadata[REACQUIRE_KEY])

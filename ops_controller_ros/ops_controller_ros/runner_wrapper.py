@@ -1,7 +1,13 @@
 """The common part of a runner that wraps another runner (held decisions, the re-acquiring
 watchdog): the interface of :class:`~ops_controller_ros.policy_io.PolicyRunner` passed through,
-so wrappers nest in any order (:func:`~ops_controller_ros.policy_switch.make_runner`). Pure
+so wrappers nest in any order (:mod:`ops_controller_ros.runner_factory` composes them). Pure
 Python: no rclpy, no torch.
+
+The interface every layer has: ``act(pulse_energies, power, setpoints_fs, applied_fs=None)``
+(an action in [-1, 1]^N), ``restart()`` (a new episode: histories and recurrent states start
+afresh), ``took(action)`` (the action applied, if another part chose it), ``reset_state(rigs)``
+(the recurrent state starts afresh at the next reading on those rigs, the memory kept: a lost
+lock), ``spec`` (the observation) and ``policy`` (the acting policy, a ``LoadedPolicy``).
 """
 
 from __future__ import annotations
@@ -32,3 +38,16 @@ class RunnerWrapper:
     def took(self, action) -> None:
         """The action applied, if another part chose it; passed on to the wrapped runner."""
         self.runner.took(action)
+
+    def reset_state(self, rigs=None) -> None:
+        """The recurrent state starts afresh at the next reading; passed on."""
+        self.runner.reset_state(rigs)
+
+
+def find_layer(runner, kind):
+    """The layer of class ``kind`` in a runner's stack (following ``.runner``), or None."""
+    while runner is not None:
+        if isinstance(runner, kind):
+            return runner
+        runner = runner.__dict__.get("runner")
+    return None

@@ -11,6 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 from ops_contract.observation import ObservationSpec, build_frame
+from ops_contract.policy_meta import PolicyMeta
 from ops_controller_ros.policy_io import (
     AUTHORS_RUN_WINDOW_CYCLES,
     LoadedPolicy,
@@ -30,7 +31,7 @@ def _loaded(metadata: dict) -> LoadedPolicy:
         observation_space=SimpleNamespace(shape=(spec.dim,)),
         predict=lambda x, deterministic=True: (np.zeros(spec.stage, dtype=np.float32), None),
     )
-    return LoadedPolicy(model=model, metadata=metadata, path=Path("stand-in"))
+    return LoadedPolicy(model=model, meta=PolicyMeta.from_dict(metadata, path="stand-in"))
 
 
 def _metadata(**spec) -> dict:

@@ -17,7 +17,7 @@ from ops_controller_ros.policy_hold import (
     resolve_hold_steps,
 )
 from ops_controller_ros.policy_io import PolicyRunner, load_policy
-from ops_controller_ros.policy_switch import make_runner
+from ops_controller_ros.runner_factory import build_runner
 from ops_sim_ros.env import OpsEnv
 
 STAGE = 5
@@ -116,7 +116,7 @@ def test_the_history_is_built_from_the_decisions_readings_alone():
     """A model with memory (n3_easy: history 4) held every 2 readings observes exactly what a
     runner fed only the decisions' readings observes."""
     loaded = load_policy(MODELS / "n3_easy")
-    held = make_runner(loaded, hold_steps=2)
+    held = build_runner(loaded, hold_steps=2)
     alone = PolicyRunner(loaded)
     assert isinstance(held, HeldRunner) and isinstance(held.runner, PolicyRunner)
     env = OpsEnv.from_config(make_config(3, "easy", "test", latency_steps=1))
@@ -130,7 +130,7 @@ def test_the_history_is_built_from_the_decisions_readings_alone():
             assert np.array_equal(held.runner.last_observation, alone.last_observation)
         env.step(action)
         r = env.sim.last
-    assert make_runner(loaded, hold_steps=1).__class__ is PolicyRunner  # 1: no wrapper
+    assert build_runner(loaded, hold_steps=1).__class__ is PolicyRunner  # 1: no wrapper
 
 
 def test_the_node_declares_hold_steps_once_with_its_range():

@@ -1,4 +1,5 @@
-"""policy_io: the one reader/writer of model directories (model.zip + metadata.json).
+"""policy_io: a model directory (model.zip + metadata.json, its schema ops_contract.policy_meta)
+loaded and run.
 
 Real stable-baselines3 models (built, not trained: loading does not care), real files."""
 
@@ -63,7 +64,8 @@ def test_metadata_round_trips(model_dir):
     expected = _metadata(env)
     for key, value in expected.items():
         assert meta[key] == pytest.approx(value) if isinstance(value, float) else meta[key] == value
-    assert meta["format_version"] == 1
+    assert meta["format_version"] == 2
+    assert meta["recipe"] == "sac" and meta["recurrent"] is None  # format 2's, by default
     assert set(meta["versions"]) >= {"python", "numpy", "torch", "stable_baselines3", "gymnasium"}
     # Rebuilding the spec and config from the metadata gives the training env's back.
     from ops_contract.config import OpsConfig
@@ -117,7 +119,7 @@ def test_check_stage_refuses_another_stage(model_dir):
     loaded = load_policy(model_dir)
     check_stage(loaded, 3)
     with pytest.raises(
-        PolicyLoadError, match="model was trained for stage 3 but the simulator runs stage 5"
+        PolicyLoadError, match=r"model .*sac was trained for stage 3, the simulator runs stage 5"
     ):
         check_stage(loaded, 5)
 
@@ -194,15 +196,17 @@ def test_save_refuses_incomplete_metadata(tmp_path):
 
 
 def test_a_model_runs_only_on_its_observation_set(model_dir):
-    from ops_controller_ros.policy_io import check_observation, observation_set_of
+    from ops_contract.policy_meta import PolicyMeta, check_asked, read_meta
 
-    meta = read_metadata(model_dir)
-    spec = {k: v for k, v in meta["observation_spec"].items() if k != "observation"}
-    old = {**meta, "observation_spec": spec}
-    assert observation_set_of(old) == "rig"  # saved before observation sets: the rig's
-    check_observation(old, "rig")
+    meta = read_meta(model_dir)
+    spec = {k: v for k, v in meta.entries["observation_spec"].items() if k != "observation"}
+    old = meta.replace(observation_spec=spec)
+    assert old.observation.observation == "rig"  # saved before observation sets: the rig's
+    check_asked(old, observation="rig")
     with pytest.raises(PolicyLoadError, match=r"trained on the 'rig' observation set.*'authors'"):
-        check_observation(meta, "authors")
-    authors = {**meta, "observation_spec": {**meta["observation_spec"], "observation": "authors"}}
+        check_asked(meta, observation="authors")
+    authors = PolicyMeta.from_dict(
+        {**meta.entries, "observation_spec": {**spec, "observation": "authors"}}
+    )
     with pytest.raises(PolicyLoadError, match=r"set -p observation:=authors .*ops/delays_actual"):
-        check_observation(authors, "rig", "-p observation:=")
+        check_asked(authors, observation="rig", flag="-p observation:=")

@@ -6,13 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ops_contract.config import make_config
-from ops_controller_ros.policy_io import PolicyLoadError, load_policy
-from ops_controller_ros.policy_switch import (
-    SwitchingRunner,
-    SwitchParams,
-    make_runner,
-    write_switch_model,
-)
+from ops_contract.policy_meta import PolicyLoadError, read_meta
+from ops_controller_ros.policy_switch import SwitchingRunner, SwitchParams, write_switch_model
+from ops_controller_ros.runner_factory import build_runner
 from ops_sim_ros.simulation import BatchedSimulation
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
@@ -70,7 +66,7 @@ def expected_holding(powers, p: SwitchParams, acting=False):
 
 
 def test_the_holder_takes_over_after_the_lock_and_hands_back_on_a_loss(switch_dir):
-    runner = make_runner(load_policy(switch_dir), num_envs=4)
+    runner = build_runner(switch_dir, num_envs=4)
     assert isinstance(runner, SwitchingRunner) and runner.params == PARAMS
     run = closed_loop(runner, seed=4100, steps=190, num_envs=4, kick_at=150)
     powers, holding = run["power"], run["holding"]
@@ -84,7 +80,7 @@ def test_the_holder_takes_over_after_the_lock_and_hands_back_on_a_loss(switch_di
 
 
 def test_the_applied_action_is_the_acting_policys_and_both_remember_it(switch_dir):
-    runner = make_runner(load_policy(switch_dir))
+    runner = build_runner(switch_dir)
     run = closed_loop(runner, seed=4101, steps=60)
     actions = run["action"]
     assert actions.shape == (60, 1, 5)
@@ -112,13 +108,24 @@ def test_a_search_that_finds_nothing_is_taken_over_by_the_holder_in_turn(tmp_pat
     holding policy for readings 11-20 of the search, back for 21-30, and so on."""
     params = SwitchParams(lock_power=0.999, acquire_patience=10)  # a lock never reached
     model = write_switch_model(tmp_path / "p", MODELS / "n5_hard_long", MODELS / "n5_hard", params)
-    runner = make_runner(load_policy(model), num_envs=2)
+    runner = build_runner(model, num_envs=2)
     run = closed_loop(runner, seed=4103, steps=45, num_envs=2)
     powers, holding, acted = run["power"], run["holding"], run["holder_acted"]
     for e in range(2):
         np.testing.assert_array_equal(acted[:, e], expected_holding(powers[:, e], params, True))
     if not holding.any():  # as planned: turns of 10 readings each, from the 11th on
         assert acted[:10].sum() == 0 and acted[10:20].all() and not acted[20:30].any()
+
+
+def test_a_switching_model_counts_both_policies_training(switch_dir):
+    """Its training_wall_s: the holder's lineage (n5_hard_long: fine-tuned from n5_hard) and
+    the acquirer's (n5_hard), the run they share counted once."""
+    hold, acquire = read_meta(MODELS / "n5_hard_long"), read_meta(MODELS / "n5_hard")
+    meta = read_meta(switch_dir)
+    shared = acquire.training_wall_s
+    assert shared and hold.training_wall_s > shared  # the holder's lineage holds n5_hard's run
+    assert meta.training_wall_s == pytest.approx(hold.training_wall_s)
+    assert meta.recipe == hold.recipe == "sac"
 
 
 def test_bad_switching_models_are_refused_with_a_reason(tmp_path, switch_dir):
@@ -128,7 +135,7 @@ def test_bad_switching_models_are_refused_with_a_reason(tmp_path, switch_dir):
     write_switch_model(broken, MODELS / "n5_hard_long", MODELS / "n5_hard")
     (broken / "acquire" / "model.zip").unlink()
     with pytest.raises(PolicyLoadError, match=r"acquiring policy .* is missing"):
-        make_runner(load_policy(broken))
+        build_runner(broken)
 
 
 @pytest.mark.parametrize(

@@ -3,21 +3,18 @@
 
 Pure numpy and the simulator: no torch, no ROS (the runner wrapped is a stand-in)."""
 
-from dataclasses import replace
+import json
+import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from ops_contract.config import make_config
-from ops_controller_ros.policy_io import PolicyLoadError, PolicyRunner, load_policy
-from ops_controller_ros.policy_switch import make_runner, needs_runner
-from ops_controller_ros.reacquire import (
-    REACQUIRE_KEY,
-    ReacquireWatchdog,
-    WatchdogParams,
-    watchdog_params_of,
-)
+from ops_contract.policy_meta import PolicyLoadError, PolicyMeta
+from ops_controller_ros.policy_io import PolicyRunner
+from ops_controller_ros.reacquire import REACQUIRE_KEY, ReacquireWatchdog, WatchdogParams
+from ops_controller_ros.runner_factory import load_model
 from ops_sim_ros.simulation import BatchedSimulation
 
 STAGE = 5
@@ -48,6 +45,9 @@ class CaptureRangePolicy:
 
     def took(self, action):
         self.applied_actions.append(np.asarray(action).copy())
+
+    def reset_state(self, rigs=None):
+        pass
 
 
 def closed_loop(runner, errors_cycles, steps: int, seed: int = 0):
@@ -124,7 +124,7 @@ class Recorder:
         self.single = num_envs is None
 
     def restart(self):
-        pass
+        self.state_resets = []
 
     def act(self, pulse_energies, power, setpoints_fs, applied_fs=None):
         a = np.full((self.n, STAGE), 0.25, dtype=np.float32)
@@ -132,6 +132,9 @@ class Recorder:
 
     def took(self, action):
         pass
+
+    def reset_state(self, rigs=None):
+        self.state_resets.append(np.asarray(rigs).copy())
 
 
 def expected_kicks(powers, p: WatchdogParams) -> tuple[np.ndarray, int]:
@@ -200,8 +203,19 @@ def test_params_are_checked():
             WatchdogParams.from_dict(bad)
     assert WatchdogParams.from_dict({}) == WatchdogParams()
     assert WatchdogParams.from_dict({"patience": 7, "note": "kept"}).patience == 7
-    assert watchdog_params_of({}) is None
-    assert watchdog_params_of({REACQUIRE_KEY: {}}) == WatchdogParams()
+
+
+def test_a_kick_starts_the_recurrent_state_afresh_on_the_rigs_it_kicks():
+    """A lost stack is a new search: the kicked rigs' recurrent state starts afresh (the
+    runner's reset_state), the others' is kept; a restart draws the same kicks again."""
+    inner = Recorder(num_envs=2)
+    wd = ReacquireWatchdog(inner, WatchdogParams(patience=3, kick_steps=2, seed=5), num_envs=2)
+    readings = [np.array([0.1, 0.9])] * 4
+    first = [wd.act(None, p, np.zeros((2, STAGE))) for p in readings]
+    assert [r.tolist() for r in inner.state_resets] == [[True, False]]  # at the third reading
+    wd.restart()
+    again = [wd.act(None, p, np.zeros((2, STAGE))) for p in readings]
+    np.testing.assert_array_equal(np.array(first), np.array(again))
 
 
 SHIPPED_WITH_WATCHDOG = [
@@ -212,17 +226,19 @@ SHIPPED_WITH_WATCHDOG = [
 @pytest.mark.parametrize(
     "folder", SHIPPED_WITH_WATCHDOG, ids=[p.name for p in SHIPPED_WITH_WATCHDOG]
 )
-def test_a_model_asking_for_the_watchdog_runs_in_it(folder):
-    """make_runner (the policy node's and evaluate's) wraps the model's runner; evaluate
-    runs it reading by reading (needs_runner), not the bare predict."""
-    loaded = load_policy(folder)
-    runner = make_runner(loaded, num_envs=3)
+def test_a_model_asking_for_the_watchdog_runs_in_it(folder, tmp_path):
+    """The runner factory (the policy node's and evaluate's) wraps the model's runner; evaluate
+    runs it reading by reading (``layered``), not the bare predict; a bad entry is refused."""
+    stack = load_model(folder)
+    runner = stack.build(num_envs=3)
     assert isinstance(runner, ReacquireWatchdog) and isinstance(runner.runner, PolicyRunner)
-    assert needs_runner(loaded)
-    plain = replace(
-        loaded, metadata={k: v for k, v in loaded.metadata.items() if k != REACQUIRE_KEY}
-    )
-    assert isinstance(make_runner(plain), PolicyRunner) and not needs_runner(plain)
-    broken = replace(loaded, metadata={**loaded.metadata, REACQUIRE_KEY: {"patience": 0}})
+    assert stack.layered and runner.params == stack.meta.reacquire
+    meta = json.loads((folder / "metadata.json").read_text())
+    plain = PolicyMeta.from_dict({k: v for k, v in meta.items() if k != REACQUIRE_KEY})
+    assert not load_model(stack.policy.__class__(stack.policy.model, plain)).layered
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    shutil.copy2(folder / "model.zip", broken / "model.zip")
+    (broken / "metadata.json").write_text(json.dumps({**meta, REACQUIRE_KEY: {"patience": 0}}))
     with pytest.raises(PolicyLoadError, match="reacquire patience"):
-        make_runner(broken)
+        load_model(broken)

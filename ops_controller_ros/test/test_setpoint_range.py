@@ -117,15 +117,14 @@ def test_a_learned_policy_on_a_drifting_rig_stays_in_range_and_holds():
     drift alone carries the stack 1.5 periods, and the range keeps the set-points within 0.6
     periods of 0. A neural policy in a closed loop is chaotic (the last bits differ between
     CPUs), so the bound is loose: it holds the stack, not a figure to the digit."""
-    from ops_controller_ros.policy_io import load_policy
     from ops_controller_ros.policy_node import PolicyController
-    from ops_controller_ros.policy_switch import make_runner
+    from ops_controller_ros.runner_factory import load_model
 
-    policy = load_policy(MODEL)
+    model = load_model(MODEL)
     low, high = centred_range(5, 2.6)
     config = make_config(5, "hard", "test", **DRIFT)
     for seed in (81, 82):
-        ctl = PolicyController(make_runner(policy), policy.max_step_fs, np.zeros(5))
+        ctl = PolicyController(model.build(), model.meta.max_step_fs, np.zeros(5))
         keeper = RangeKeeper(low, high, config.optical_period_fs, reach_fs=6.4)
         commands, powers = drive(ctl, config, seed, 3000, keeper, first=True)
         assert inside(commands, low, high), seed
