@@ -43,7 +43,7 @@ LIMITS = {
     "drift_slope_max_cycles": (0.0, 1.0),
     "initial_sigma_cycles": (0.0, 10.0),
     "actuator_range_cycles": (0.0, 1000.0),
-    # the rig between controller and optics (issue 30; ops_sim_ros.rig, docs/physics.md)
+    # the rig between controller and optics (ops_sim_ros.rig, docs/physics.md)
     "latency_steps": (0, 1000),
     "actuator_lag_steps": (0.0, 1000.0),
     "actuator_hysteresis": (0.0, 0.99),
@@ -61,7 +61,7 @@ LIMITS = {
 IDEAL_ZERO = {"dac_bits": "an ideal DAC", "trace_adc_bits": "an ideal trace"}
 
 # The rig presets (``realism``): each fills these fields unless they are given. ``ideal`` is the
-# ideal stacker every figure before issue 30 was measured on; ``lab`` a typical lab's rig
+# ideal stacker (no rig between controller and optics); ``lab`` a typical lab's rig
 # (docs/physics.md, "Rig imperfections", gives each value's source).
 REALISM_PRESETS = {
     "ideal": dict(
@@ -169,7 +169,7 @@ class OpsConfig:
     absolute_action_range_cycles: float = 1.0  # absolute actions in [-1, 1] map to +- this
     # --- episodes
     episode_steps: int = 200
-    # --- the rig between controller and optics (issue 30, ops_sim_ros.rig); ideal by default
+    # --- the rig between controller and optics (ops_sim_ros.rig); ideal by default
     realism: str = "ideal"  # the preset the fields below start from (REALISM_PRESETS)
     latency_steps: int = 0  # a command acts this many steps after the reading it answered
     actuator_lag_steps: float = 0.0  # first-order response of the delay line, steps

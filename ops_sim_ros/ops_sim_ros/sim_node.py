@@ -111,7 +111,7 @@ PARAMS = [
         )
         for name, desc in _CONFIG_OVERRIDES
     ],
-    # The rig between controller and optics (issue 30, docs/physics.md "Rig imperfections"),
+    # The rig between controller and optics (docs/physics.md "Rig imperfections"),
     # declared once for the simulator and every controller node: -1 means "the realism
     # preset's value".
     *RIG_PARAMS,
