@@ -11,7 +11,8 @@ included) until the mean P_N / P_max of the last 10 readings of ops/power is >= 
 
 Usage (after `source setup.bash`):
   ops-bench first-run [--seeds 20] [--first-seed 0] [--write docs/results/spgd/notes.md]
-  ops-bench first-run --controller tracker --stage 5 --echo none --seeds 5 --write docs/tracker.md
+  ops-bench first-run --controller tracker --stage 5 --echo none --seeds 5 \\
+      --write docs/results/tracker/notes.md
 With --write, the controller's section of that Markdown file is replaced; a results page's
 hand-kept text (docs/results/*/notes.md) also rewrites the results pages (`ops-bench results`).
 """

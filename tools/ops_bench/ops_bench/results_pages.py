@@ -64,8 +64,7 @@ TOPICS = (
     Page(
         "learned",
         "Learned agents",
-        "issue 11: SAC with memory and the nines reward, both "
-        "detectors, the ablation, training speed",
+        "SAC with memory and the nines reward, both detectors, the ablation, training speed",
     ),
     Page(
         "continuous",
@@ -92,7 +91,7 @@ OTHER_PAGES = (
     (
         "paper_budget_report/README.md",
         "Table 1 at the paper's budget",
-        "issue 32, all 18 runs and TD3 easy over the paper's ten seeds, written by "
+        "all 18 runs and TD3 easy over the paper's ten seeds, written by "
         "`ros2 run ops_gym_bridge report` (`--pool` for the ten)",
     ),
 )

@@ -5,11 +5,11 @@ resumed part) and a fresh
 evaluation on held-out seeds by `ros2 run ops_gym_bridge evaluate`.
 
 Usage (after `source setup.bash`):
-  ops-bench ship-model runs/issue11/n5_hard models/n5_hard [--seeds 100 101 102 103 104]
+  ops-bench ship-model runs/learned/n5_hard models/n5_hard [--seeds 100 101 102 103 104]
 Writes models/NAME/{model.zip, metadata.json, learning.csv, eval/...}; the folder is what
 `ros2 run ops_controller_ros policy --ros-args -p model:=models/NAME` and `evaluate` accept.
 
-  ops-bench ship-model runs/issue11/n5_easy docs/results/issue11/n5_easy_k0 --curve-only
+  ops-bench ship-model runs/learned/n5_easy DEST --curve-only
 keeps only what a figure needs of a run that is not shipped (an ablation): metadata.json and
 learning.csv (kilobytes), no model; with --eval also the held-out evaluation of the run's best
 model (DEST/eval), e.g. for a run with the other detector that is not shipped but is reported.

@@ -4,7 +4,7 @@ mismatch the controller is not told of, and compute per control step for N = 1..
 
 Usage (after `source setup.bash`):
   OPENBLAS_NUM_THREADS=1 ops-bench tracker [--seeds 5] [--episodes 5]
-      [--write docs/tracker.md]
+      [--write docs/results/tracker/notes.md]
 Every row runs the same loop as `ros2 run ops_gym_bridge evaluate --controller tracker`
 (ops_experiments.rollouts.controller_episodes).
 """

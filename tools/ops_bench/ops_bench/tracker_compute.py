@@ -1,4 +1,4 @@
-"""The tracker's compute per reading, against a node's 10 ms at 100 Hz (issue 20).
+"""The tracker's compute per reading, against a node's 10 ms at 100 Hz.
 
 In process, in the testing environment (N = 5, polarizer detector; the ideal rig, or
 ``--realism``, told to the tracker): ``command`` + ``observe`` of every reading after the first
