@@ -65,6 +65,17 @@ def summarize(per_seed: list[dict[str, np.ndarray]]) -> dict[str, Any]:
     }
 
 
+def episode_time(steps: int, config) -> dict[str, Any]:
+    """The episodes' length in physical time beside their steps (keys added to an
+    ``evaluation.json``; docs/physics.md, "Physical time and vibration"): ``time_base``,
+    ``step_s`` (the control period; the paper's 0.1 s under ``step``) and ``episode_s``."""
+    return {
+        "time_base": config.time_base,
+        "step_s": config.step_s,
+        "episode_s": round(int(steps) * config.step_s, 9),
+    }
+
+
 def _rounded(values: np.ndarray, digits: int) -> list[float]:
     return [round(float(v), digits) for v in values]
 

@@ -60,3 +60,16 @@ def test_rig_takes_the_keys_of_physical_time_and_tells_the_controller(tmp_path):
     assert set(TIME_KEYS) <= set(cli_args.RIG_OPTION_KEYS)
     code, res = _evaluate(tmp_path, "--rig", "time_base=seconds", "step_s=0.01", "vibration=lab")
     assert code == 0 and res["rig"]["step_s"] == 0.01
+
+
+def test_episode_time_counts_seconds_beside_steps():
+    from ops_contract.config import make_config
+    from ops_experiments.summary import episode_time
+
+    assert episode_time(200, make_config()) == {
+        "time_base": "step",
+        "step_s": 0.1,
+        "episode_s": 20.0,
+    }
+    fast = make_config(time_base="seconds", step_s=0.001)
+    assert episode_time(2000, fast)["episode_s"] == 2.0
