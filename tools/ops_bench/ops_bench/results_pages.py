@@ -94,6 +94,12 @@ OTHER_PAGES = (
         "all 18 runs and TD3 easy over the paper's ten seeds, written by "
         "`ros2 run ops_gym_bridge report` (`--pool` for the ten)",
     ),
+    (
+        "physical_time/index.md",
+        "Physical time and vibration",
+        "time_base seconds against step, the walk and drift per simulated second, the lab "
+        "vibration's bands and cost, written by `python -m ops_bench.physical_time`",
+    ),
 )
 
 HEADER = (
