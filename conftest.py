@@ -65,3 +65,26 @@ def observer():
     obs = TopicObserver()
     yield obs
     obs.close()
+
+
+#: Modules that run long without starting DDS processes (they train or evaluate real models).
+HEAVY_MODULES = frozenset(
+    {
+        "test_shipped_models.py",
+        "test_train_cli.py",
+        "test_benchmark_ray.py",
+        "test_memory_models.py",
+        "test_benchmark_cli.py",
+    }
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """The long modules first (real processes over DDS, training): pytest-xdist hands modules to
+    its workers in this order, so the short ones fill in at the end and the workers finish
+    together. Within a module the order stays as written."""
+
+    def heavy(item) -> bool:
+        return item.path.name in HEAVY_MODULES or item.get_closest_marker("integration") is not None
+
+    items.sort(key=lambda item: not heavy(item))

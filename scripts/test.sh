@@ -7,4 +7,6 @@ source setup.bash
 echo "[test] ruff check"
 ruff check .
 echo "[test] pytest"
-exec python -m pytest "$@"
+# One worker per core; a module's tests stay on one worker (their module-scoped processes and
+# models are made once). PYTEST_WORKERS=0 runs in this process alone.
+exec python -m pytest -n "${PYTEST_WORKERS:-auto}" --dist loadfile "$@"

@@ -34,7 +34,7 @@ MISMATCH = {
 }
 #: The mismatch rows (extreme mode, the tracker not told): a real rig is always off its
 #: model. Each row is measured in medium and extreme mode with the worst episode beside the mean.
-MISMATCH_ISSUE20 = {
+MISMATCH_CASES = {
     "none": {},
     "wavelength -2 %": dict(wavelength_nm=1009.4),
     "wavelength -1 %": dict(wavelength_nm=1019.7),
@@ -45,7 +45,7 @@ MISMATCH_ISSUE20 = {
     "detector gain x0.7": dict(detector_gain=0.7),
     "detector noise 0.01": dict(detector_noise=0.01),
 }
-SECTION_MISMATCH = "## Tracker: model mismatch on held-out seeds (issue 20)"
+SECTION_MISMATCH = "## Tracker: model mismatch on held-out seeds"
 
 
 def rows(mode, detector, seeds, episodes, steps, env=None, first_seed=0, params=None):
@@ -112,7 +112,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument(
         "--rows",
         nargs="+",
-        choices=list(MISMATCH_ISSUE20),
+        choices=list(MISMATCH_CASES),
         metavar="ROW",
         help="--mismatch: only these rows (default: all)",
     )
@@ -204,7 +204,7 @@ def mismatch_table(args, cmd: str) -> int:
         "|---|---|---|---|---|---|",
     ]
     t_start = time.time()
-    for name, env in MISMATCH_ISSUE20.items():
+    for name, env in MISMATCH_CASES.items():
         if args.rows and name not in args.rows:
             continue
         cells = []
