@@ -3,8 +3,10 @@
 Isolation: each test module gets its own ROS_DOMAIN_ID, and DDS discovery is kept on localhost.
 Under pytest-xdist (``make test`` runs ``-n auto``) each worker draws from a slice of the domains
 of its own, so two workers never share one; within a slice the modules take turns, offset by the
-pid so that two test runs on one machine rarely meet. ``procs`` starts commands the way a user would (``ros2 run``) and stops every one of
-them (SIGINT, then SIGKILL) when the test ends; see ops_bench.processes (tools/ops_bench).
+pid so that two test runs on one machine rarely meet.
+
+``procs`` starts commands the way a user would (``ros2 run``) and stops every one of them (SIGINT,
+then SIGKILL) when the test ends; see ops_bench.processes (tools/ops_bench).
 """
 
 from __future__ import annotations
