@@ -37,6 +37,9 @@ from .oracle import teacher_labels
 
 RECIPES = ("dagger-oracle",)
 EVAL_EPISODES = 100
+#: The saved actor's log std (its stochastic policy, unused by the deterministic student): exp
+#: of it, 0.1, is the exploration an RL fine-tune from the student starts with.
+INITIAL_LOG_STD = -2.3
 
 
 @dataclass
@@ -146,7 +149,14 @@ class Collector:
     def __init__(self, args, env_kwargs: dict, rig_ranges) -> None:
         from ops_sim_ros.vec_env import OpsVectorEnv
 
-        self.venv = OpsVectorEnv(num_envs=args.envs, split="train", seed=args.seed, **env_kwargs)
+        self.venv = OpsVectorEnv(
+            num_envs=args.envs,
+            split="train",
+            seed=args.seed,
+            continue_prob=args.continue_prob,
+            **env_kwargs,
+        )
+        self.fresh = True  # the next round starts every env afresh
         self.venv.reset(seed=args.seed)
         self.base_config = self.venv.sim.config
         self.rig_ranges = rig_ranges
@@ -160,10 +170,15 @@ class Collector:
         sim = self.venv.sim
         if self.rig_ranges:
             sim.use_rig(self.base_config.replace(**self.rig_ranges.draw(self.rng)))
-        obs, _ = self.venv.reset()
+        if self.fresh or self.rig_ranges or not self.venv.continue_prob:
+            obs, _ = self.venv.reset()
+            self.age = np.zeros(self.venv.num_envs, dtype=np.int64)
+        else:  # with --continue-prob the envs' own ends of episodes started or continued them
+            obs = self.last_obs
+        self.fresh = False
         final = np.nan
         for _ in range(self.base_config.episode_steps):
-            labels = teacher_labels(sim, self.probe_steps)
+            labels = teacher_labels(sim, self.probe_steps, self.age)
             data.add(obs, labels)
             if beta >= 1.0:
                 act = labels
@@ -175,8 +190,12 @@ class Collector:
                 act[teach] = labels[teach]
             obs, _, _, trunc, info = self.venv.step(act)
             self.steps += act.shape[0]
+            self.age += 1
+            if trunc.any():  # fresh runs start at set-points 0; continued ones moved away
+                self.age[trunc & np.all(sim.setpoints_fs == 0.0, axis=1)] = 0
             if trunc.all():
                 final = float(np.mean(info["final_info"]["power"]))
+        self.last_obs = obs
         return final
 
 
@@ -190,6 +209,10 @@ def build_student(args, out: Path):
         "--seed", str(args.seed), "--torch-threads", str(args.torch_threads), "--n-envs", "1",
         "--hyperparams", f"net_arch=[{args.width},{args.width}]",
     ]  # fmt: skip
+    if args.setpoint_window:
+        options += ["--setpoint-window", str(args.setpoint_window)]
+    if args.continue_prob:
+        options += ["--continue-prob", str(args.continue_prob)]
     if args.realism:
         options += ["--realism", args.realism]
     if args.rig_randomize:
@@ -231,6 +254,9 @@ def train_loop(args, run, out: Path, argv: list[str], t0: float) -> dict:
 
     actor = run.model.actor
     actor.set_training_mode(True)
+    with torch.no_grad():  # a near-deterministic start for an RL fine-tune (train --init-from)
+        actor.log_std.weight.zero_()
+        actor.log_std.bias.fill_(INITIAL_LOG_STD)
     optimizer = torch.optim.Adam(actor.parameters(), lr=args.lr)
     env_kwargs = env_kwargs_of(run)
     collector = Collector(args, env_kwargs, run.args.rig_ranges)
@@ -287,7 +313,7 @@ def _extra(args, best: dict, steps: int) -> dict:
 
 DAGGER_KEYS = (
     "envs", "rounds", "beta0", "beta_decay", "grad_steps", "batch", "lr", "capacity",
-    "probe_steps", "action_noise", "width", "eval_seed",
+    "probe_steps", "action_noise", "width", "eval_seed", "setpoint_window", "continue_prob",
 )  # fmt: skip
 
 
@@ -298,6 +324,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mode", choices=("easy", "medium", "hard", "extreme"), default="hard")
     p.add_argument("--detector", choices=("polarizer", "total"), default="polarizer")
     p.add_argument("--obs-history", type=int, default=8, help="memory k of the observation")
+    p.add_argument(
+        "--setpoint-window",
+        type=float,
+        default=0.0,
+        help="set-points observed re-centred by whole cycles (as train's)",
+    )
+    p.add_argument(
+        "--continue-prob",
+        type=float,
+        default=0.0,
+        help="an ended episode carries the run on with this probability (as train's)",
+    )
     p.add_argument("--realism", choices=("ideal", "lab"), default=None)
     p.add_argument("--rig-randomize", nargs="+", default=None, metavar="KEY=LOW:HIGH",
                    help="a rig drawn per round (all envs share it), as train's")  # fmt: skip

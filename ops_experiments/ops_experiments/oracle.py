@@ -58,12 +58,15 @@ def probe_pattern(steps: int, stage: int) -> np.ndarray:
     return h[1 : steps + 1, 1 : stage + 1].copy()
 
 
-def teacher_labels(sim, probe_steps: int = 1) -> np.ndarray:
+def teacher_labels(sim, probe_steps: int = 1, age=None) -> np.ndarray:
     """(B, N) the teacher's actions for a student on the rig's view: the probe where fewer than
-    ``probe_steps`` steps of the episode have been taken, the oracle elsewhere."""
+    ``probe_steps`` steps of the run have been taken, the oracle elsewhere. ``age``: (B,) steps
+    since each env's run started afresh (default: the episode's step count; a run that carries
+    on over episodes is probed at its start only)."""
     labels = oracle_increments(sim)
     if probe_steps > 0:
-        early = sim.step_count < probe_steps
+        age = sim.step_count if age is None else np.asarray(age)
+        early = age < probe_steps
         if early.any():
-            labels[early] = probe_pattern(probe_steps, sim.stage)[sim.step_count[early]]
+            labels[early] = probe_pattern(probe_steps, sim.stage)[age[early]]
     return labels

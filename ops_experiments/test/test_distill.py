@@ -59,6 +59,16 @@ def test_teacher_probes_first_then_follows_the_oracle():
         venv.step(labels)
 
 
+def test_a_run_carried_on_is_probed_at_its_start_only():
+    venv = OpsVectorEnv(num_envs=4, mode="hard", seed=2)
+    venv.reset(seed=2)
+    age = np.array([0, 1, 5, 50])  # steps since each run started afresh; episode step 0 for all
+    labels = teacher_labels(venv.sim, probe_steps=3, age=age)
+    pattern = probe_pattern(3, 5)
+    np.testing.assert_array_equal(labels[:2], pattern[:2])
+    np.testing.assert_array_equal(labels[2:], oracle_increments(venv.sim)[2:])
+
+
 def test_standardizer_folded_into_the_first_layer_gives_the_same_actions():
     from stable_baselines3 import SAC
 
