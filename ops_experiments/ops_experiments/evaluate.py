@@ -13,9 +13,13 @@ seeds of each seed's mean over its episodes), the final return (P_N at the last 
 "final return"), the episode return (sum of rewards) and the P_N-vs-step curve.
 
 Writes ``OUT/evaluation.json`` (summary + curves), ``OUT/curve.csv`` (step, split, mean, std) and
-``OUT/curve.png``. ``--mode`` / ``--stage`` evaluate on another environment than the model was
-trained on (the transfer experiment of section 4.2); a stage whose observation shape differs from
-the model's is refused with a clear error.
+``OUT/curve.png``. ``--mode`` evaluates on another mode than the model was trained on (the
+transfer experiment of section 4.2). A model is built once
+(:mod:`ops_controller_ros.runner_factory`, as the policy node builds it) and runs only on the stage,
+detector and observation set it was trained for: another ``--stage``, ``--detector`` or
+``--observation``, or a model the runner cannot run (an unknown recipe, observation or recurrent
+state, a missing model.zip or metadata.json), exits with status 2 and a message naming what
+differs.
 """
 
 from __future__ import annotations
@@ -29,10 +33,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from ops_contract.config import SPLITS, make_config
+from ops_contract.config import SPLITS
+from ops_contract.held import HOLD_STEPS_MAX
 from ops_contract.observation import OBSERVATION_SETS
 from ops_contract.threads import limit_blas_threads
-from ops_controller_ros.policy_hold import HOLD_STEPS_MAX, model_hold_steps, resolve_hold_steps
 
 from . import cli_args, continuous
 from .cli_args import hold_steps_type
@@ -135,6 +139,15 @@ def build_parser():
         "pulse_fwhm_fs=1200) that the controller is not told of",
     )
     cli_args.add_rig_arguments(p, "the controller")
+    _add_model_arguments(p)
+    p.add_argument("--no-plot", action="store_true", help="do not write curve.png")
+    p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (0: default)")
+    p.add_argument("--quiet", action="store_true", help="print only the summary table")
+    return p
+
+
+def _add_model_arguments(p) -> None:
+    """The options only a learned model takes: its hold and its observation set."""
     p.add_argument(
         "--hold-steps",
         type=hold_steps_type,
@@ -154,10 +167,6 @@ def build_parser():
         help="observation set to run the model on: a model runs only on the set it was trained "
         "on: rig or authors (default: the model's, from its metadata)",
     )
-    p.add_argument("--no-plot", action="store_true", help="do not write curve.png")
-    p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (0: default)")
-    p.add_argument("--quiet", action="store_true", help="print only the summary table")
-    return p
 
 
 def _parse(items: list[str], what: str) -> dict[str, Any]:
@@ -209,30 +218,23 @@ def resolve_subject(args) -> Subject:
         )
         _check_controller(subject)
         return subject
-    loaded, stage = load_for_evaluation(args.model, args.stage)
-    if args.observation is not None:
-        from ops_controller_ros.policy_io import PolicyLoadError, check_observation
-
-        try:
-            check_observation(loaded.metadata, args.observation)
-        except PolicyLoadError as exc:
-            raise EvaluationError(str(exc)) from None
-    trained_detector = (loaded.metadata.get("config") or {}).get("detector", "polarizer")
+    model = load_for_evaluation(args)
+    trained = model.meta
     subject = Subject(
-        name=loaded.algo,
-        stage=stage,
-        mode=args.mode or loaded.mode,
-        detector=args.detector or trained_detector,
+        name=trained.algo,
+        stage=trained.stage,
+        mode=args.mode or trained.mode,
+        detector=trained.detector,
         env_overrides=env_overrides,
         rig=rig,
-        policy=loaded,
+        model=model,
         meta={
-            "controller": loaded.algo,
-            "model": str(loaded.path),
-            "trained_stage": loaded.stage,
-            "trained_mode": loaded.mode,
-            "trained_detector": trained_detector,
-            "trained_timesteps": loaded.metadata.get("timesteps"),
+            "controller": trained.algo,
+            "model": str(model.path),
+            "trained_stage": trained.stage,
+            "trained_mode": trained.mode,
+            "trained_detector": trained.detector,
+            "trained_timesteps": trained.entries.get("timesteps"),
         },
     )
     return _with_hold(subject, args)
@@ -249,22 +251,27 @@ def with_hold(subject: Subject, asked: int | None = None, record: bool = False) 
     it is told of); said in the results (``hold_steps``). One resolution for ``evaluate`` and
     the benchmark's evaluation (:mod:`ops_experiments.table1.bench_worker`), so a model trained
     with ``train --hold-steps`` is evaluated with its hold by both."""
+    from ops_contract.policy_meta import PolicyLoadError
+
+    model = subject.model
+    asked = model.meta.hold_steps if asked is None else asked
     try:
-        if asked is None:
-            asked = model_hold_steps(subject.policy.metadata)
-        if asked == 1:
-            return subject
-        latency = subject.nominal_config("train", 1).latency_steps
-        hold = resolve_hold_steps(asked, latency)
-    except ValueError as exc:
+        held = model.with_hold(asked, subject.nominal_config("train", 1).latency_steps)
+    except (ValueError, PolicyLoadError) as exc:
         raise EvaluationError(str(exc)) from None
-    if record and hold != 1:
+    if record and held.hold_steps != 1:
         raise EvaluationError(
             "--record records the bare policy's episodes; give --hold-steps 1 to record "
-            f"(this run holds {hold} readings per decision)"
+            f"(this run holds {held.hold_steps} readings per decision)"
         )
-    subject.hold_steps = hold
-    subject.meta["hold_steps"] = hold
+    if record and held.policy.recurrent:
+        raise EvaluationError(
+            "--record records a policy step by step without its recurrent state; a recurrent "
+            "model cannot be recorded"
+        )
+    subject.model, subject.hold_steps = held, held.hold_steps
+    if asked != 1:
+        subject.meta["hold_steps"] = held.hold_steps
     return subject
 
 
@@ -281,28 +288,25 @@ def _check_controller(subject: Subject) -> None:
         raise EvaluationError(str(exc)) from None
 
 
-def load_for_evaluation(model_path: str, stage: int | None):
-    """(LoadedPolicy, stage) or EvaluationError for a model that cannot run on ``stage``."""
-    from ops_contract.observation import ObservationSpec
-    from ops_controller_ros.policy_io import PolicyLoadError, load_policy, observation_spec_of
-    from ops_controller_ros.policy_switch import make_runner
+def load_for_evaluation(args):
+    """The model ``args`` name, read and loaded once
+    (:func:`ops_controller_ros.runner_factory.load_model`), or EvaluationError for one that
+    cannot run on the stage, detector or observation set ``args`` ask for (a model runs on what
+    it was trained for) or cannot be loaded at all."""
+    from ops_contract.policy_meta import PolicyLoadError
+    from ops_controller_ros.runner_factory import load_model
 
     try:
-        loaded = load_policy(model_path)
-        make_runner(loaded)  # a switching model's second policy: loaded and checked now
+        return load_model(
+            args.model,
+            stage=args.stage,
+            detector=args.detector,
+            observation=args.observation,
+            source="the evaluation's simulator (--stage, --detector)",
+            observation_flag="--observation",
+        )
     except PolicyLoadError as exc:
         raise EvaluationError(str(exc)) from None
-    stage = loaded.stage if stage is None else stage
-    if stage != loaded.stage:
-        spec = observation_spec_of(loaded.metadata)
-        target = ObservationSpec.from_config(make_config(stage=stage), **spec.options())
-        if target.dim != spec.dim:
-            raise EvaluationError(
-                f"cannot evaluate a stage-{loaded.stage} model on stage {stage}: its observation "
-                f"has {target.dim} values and its action {stage}, the model expects "
-                f"{spec.dim} and {loaded.stage} (stage transfer needs equal shapes)"
-            )
-    return loaded, stage
 
 
 def evaluate(args, subject: Subject | None = None) -> dict[str, Any]:
@@ -365,7 +369,7 @@ def default_out(args, subject: Subject) -> Path:
     models' folders do (``runs/`` is git-ignored at the repository root; a shipped model's tracked
     ``eval/`` folder is never overwritten by accident)."""
     if args.model:
-        from ops_controller_ros.policy_io import resolve_paths
+        from ops_contract.policy_meta import resolve_paths
 
         name = resolve_paths(args.model)[0].parent.name
     else:

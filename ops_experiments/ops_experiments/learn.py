@@ -1,6 +1,8 @@
 """Train a built run (:mod:`.build`) and save it: model, replay buffer, normalization, the
-metadata the policy runner reads (``ops_controller_ros.policy_io``), checkpoints and the best
-model of ``--eval-freq``. Ctrl-C / SIGTERM stop training and save a usable model.
+metadata the policy runner reads (written through ``ops_contract.policy_meta``, its schema:
+``recipe`` the algo, ``recurrent`` the model's LSTM if it has one, ``training_wall_s`` the runs
+behind it), checkpoints and the best model of ``--eval-freq``. Ctrl-C / SIGTERM stop training and
+save a usable model.
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ def build_metadata(
     interrupted: bool,
     previous: dict | None,
 ) -> dict[str, Any]:
-    from ops_controller_ros.policy_io import library_versions
+    from ops_contract.policy_meta import library_versions
 
     from ops_sim_ros import OpsEnv
 
@@ -77,6 +79,9 @@ def build_metadata(
     powers = final_powers(model.ep_info_buffer or [])
     return {
         "algo": args.algo,
+        "recipe": args.algo,
+        "recurrent": recurrent_of(model),
+        "training_wall_s": training_wall_s(previous, history),
         "stage": args.stage,
         "mode": args.mode,
         "split": args.split,
@@ -103,13 +108,37 @@ def build_metadata(
         "hyperparams_set": args.hyperparams_set,
         "continue_prob": args.continue_prob,
         # readings per decision (0: auto, each rig's latency_steps + 1): evaluate and the policy
-        # node hold the model so by default (ops_controller_ros.policy_hold.model_hold_steps)
+        # node hold the model so by default (ops_contract.policy_meta: PolicyMeta.hold_steps)
         "hold_steps": args.hold_steps,
         "hyperparams": params,
         "interrupted": interrupted,
         "train_final_power_mean": float(powers.mean()) if powers.size else None,
         "history": history,
     }
+
+
+def recurrent_of(model) -> dict | None:
+    """The metadata's ``recurrent`` entry of an SB3 model: its LSTM (sb3-contrib
+    RecurrentPPO), or None for a policy without a recurrent state."""
+    shape = getattr(getattr(model, "policy", None), "lstm_hidden_state_shape", None)
+    if shape is None:
+        return None
+    layers, _, hidden = shape
+    return {"kind": "lstm", "hidden": int(hidden), "layers": int(layers)}
+
+
+def training_wall_s(previous: dict | None, history: list) -> float | None:
+    """The wall seconds of all the training behind a model: the runs of its lineage
+    (``history``, this run's included), plus what the model it was resumed or fine-tuned from
+    counted beyond its own lineage (a teacher, distillation)."""
+    from ops_contract.policy_meta import lineage_wall_s
+
+    total = lineage_wall_s({"history": history})
+    before = (previous or {}).get("training_wall_s")
+    if before is not None:
+        beyond = float(before) - (lineage_wall_s(previous) or 0.0)
+        total = (total or 0.0) + max(beyond, 0.0)
+    return None if total is None else round(total, 2)
 
 
 def _save(
@@ -125,7 +154,7 @@ def _save(
     replay: bool = True,
     extra: dict | None = None,
 ) -> None:
-    from ops_controller_ros.policy_io import save_metadata
+    from ops_contract.policy_meta import write_meta
 
     out.mkdir(parents=True, exist_ok=True)
     tmp = out / "model.tmp.zip"
@@ -138,7 +167,7 @@ def _save(
     if isinstance(venv, VecNormalize):
         venv.save(str(out / "vecnormalize.pkl"))
     meta = build_metadata(args, params, model, venv, argv, wall_s, interrupted, previous)
-    save_metadata(out, {**meta, **(extra or {})})
+    write_meta(out, {**meta, **(extra or {})})
 
 
 def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
@@ -204,12 +233,12 @@ def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
 def _carry_best(callbacks, best_dir: Path) -> None:
     """The best evaluation so far of a resumed run (DIR/best's ``eval_final_power``): a later
     evaluation replaces DIR/best only if it is better, as within one run."""
-    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
+    from ops_contract.policy_meta import PolicyLoadError, read_meta
 
     from .callbacks import BestModelCallback
 
     try:
-        power = read_metadata(best_dir).get("eval_final_power")
+        power = read_meta(best_dir).entries.get("eval_final_power")
     except PolicyLoadError:
         return
     for callback in callbacks.callbacks:
@@ -269,10 +298,11 @@ def _actor_frozen_until(run: TrainRun, warm_until: int | None) -> int | None:
     return int(until) if until else None
 
 
-def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
-    """Train; on success, Ctrl-C / SIGTERM or an error after the first step, save the model.
-    Returns (interrupted, error, wall seconds)."""
-    from ops_controller_ros.policy_io import save_metadata
+def _callbacks(run: TrainRun, t0_ref: list[float]):
+    """The run's SB3 callbacks (progress, checkpoints, --eval-freq's best model, the time
+    limit, a fine-tune's warm buffer and frozen actor, the caller's extra ones); the metadata
+    its checkpoints share is written here."""
+    from ops_contract.policy_meta import write_meta
 
     from .callbacks import training_callbacks
 
@@ -281,7 +311,6 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
     every = max(int(run.params.get("checkpoint_freq", 10000)) // max(args.n_envs, 1), 1)
     normalize = bool(run.params.get("normalize_obs", False))
     max_s = None if not args.max_minutes else 60.0 * args.max_minutes
-    t0_ref = [time.monotonic()]
     best = _best_model_hooks(run, t0_ref) if args.eval_freq > 0 else None
     # A fine-tuned model is evaluated before its first step too: its starting figure, and
     # DIR/best never worse than the model it started from.
@@ -301,12 +330,22 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         callbacks.callbacks.insert(1, ActorFreeze(until))  # [0], the progress bar, is closed last
     if best is not None and args.resume:  # a resumed run keeps DIR/best unless it beats it
         _carry_best(callbacks, out / "best")
-    # Checkpoints are loadable with policy_io too: they share this metadata (policy_io reads
-    # each one's step count from its name).
+    # Checkpoints are loadable too: they share this metadata (policy_meta.read_meta reads each
+    # one's step count from its name).
     meta = build_metadata(
         args, run.params, model, run.venv, run.command_line, 0.0, False, run.previous
     )
-    save_metadata(out / "checkpoints", {**meta, "checkpoint": True})
+    write_meta(out / "checkpoints", {**meta, "checkpoint": True})
+    return callbacks
+
+
+def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
+    """Train; on success, Ctrl-C / SIGTERM or an error after the first step, save the model.
+    Returns (interrupted, error, wall seconds)."""
+    args, out, model = run.args, run.out, run.model
+    total = run.start_steps + args.timesteps
+    t0_ref = [time.monotonic()]
+    callbacks = _callbacks(run, t0_ref)
 
     _STOP_SIGNALS.clear()
     previous_handler = signal.signal(signal.SIGTERM, _stop_to_interrupt)

@@ -6,7 +6,7 @@
   --controller``, ``evaluate --record`` and ``ops-bench spgd-baseline``.
 * :func:`rollout_policy` runs a learned policy's batched ``predict`` on a vector env;
   :func:`rollout_runner` the same episodes with a runner that reads the readings itself (a
-  switching model, :mod:`ops_controller_ros.policy_switch`).
+  model's runner with its layers, :mod:`ops_controller_ros.runner_factory`).
 * :func:`policy_episodes` runs a batched ``predict`` on the very episodes of
   :func:`controller_episodes` (one env per episode, reset with :func:`episode_seed`: the same
   initial delay errors and the same noise draws), so agents and controllers compare like with
@@ -123,9 +123,10 @@ def rollout_runner(
     runner, sim_config, episodes: int, steps: int, seed: int
 ) -> dict[str, np.ndarray]:
     """:func:`rollout_policy` for a runner that builds its own observations from each reading
-    (``runner.act(pulse_energies, power, setpoints_fs, applied_fs)`` on (B, ...) arrays, e.g.
-    a :class:`~ops_controller_ros.policy_switch.SwitchingRunner` of ``episodes`` rigs): the
-    same episodes as :func:`rollout_policy` for the same ``seed``."""
+    (``runner.act(pulse_energies, power, setpoints_fs, applied_fs)`` on (B, ...) arrays: a
+    runner of ``episodes`` rigs, ``ModelStack.build`` of
+    :mod:`ops_controller_ros.runner_factory`): the same episodes as :func:`rollout_policy` for
+    the same ``seed``."""
     runner.restart()
 
     def act(_, r):

@@ -21,10 +21,10 @@ from .rollouts import rollout_controller, rollout_policy, rollout_runner
 
 @dataclass
 class Subject:
-    """A controller (by name, with parameters) or a loaded policy
-    (:class:`~ops_controller_ros.policy_io.LoadedPolicy`), and the environment it runs on:
-    stage, mode, detector, the rig both the simulator and the controller know, and
-    ``env_overrides`` the controller is not told of."""
+    """A controller (by name, with parameters) or a learned model (a
+    :class:`~ops_controller_ros.runner_factory.ModelStack`: read and loaded once, its hold
+    resolved), and the environment it runs on: stage, mode, detector, the rig both the simulator
+    and the controller know, and ``env_overrides`` the controller is not told of."""
 
     name: str
     stage: int
@@ -35,7 +35,7 @@ class Subject:
     rig: dict[str, Any] = field(default_factory=dict)  # known to both sim and controller
     controller: str | None = None
     controller_params: dict[str, Any] = field(default_factory=dict)
-    policy: Any = None  # LoadedPolicy
+    model: Any = None  # ModelStack
     #: The configuration a controller is built for; None: the run's own (stage, mode, split,
     #: detector, rig). The benchmark tells every controller the same nominal rig.
     nominal: Any = None
@@ -45,6 +45,11 @@ class Subject:
     #: Readings per decision of a policy (resolved: >= 1; ``evaluate --hold-steps``): k > 1 runs
     #: it through :class:`~ops_controller_ros.policy_hold.HeldRunner`, as the policy node does.
     hold_steps: int = 1
+
+    @property
+    def policy(self):
+        """The model's acting policy (a ``LoadedPolicy``; None for a controller)."""
+        return None if self.model is None else self.model.policy
 
     def with_mode(self, mode: str) -> Subject:
         """The same subject on another mode's environment (the benchmark's transfer)."""
@@ -66,11 +71,11 @@ class Subject:
     def observation_options(self) -> dict[str, Any] | None:
         """The policy's observation choices (memory included), as the policy runner builds
         them (``policy_io.run_observation_spec``); None for a controller."""
-        if self.policy is None:
+        if self.model is None:
             return None
         from ops_controller_ros.policy_io import run_observation_spec
 
-        return run_observation_spec(self.policy.metadata).options()
+        return run_observation_spec(self.model.meta).options()
 
     def run(self, split: str, episodes: int, steps: int, seed: int) -> dict[str, np.ndarray]:
         """``episodes`` episodes of ``steps`` steps of evaluation seed ``seed`` on ``split``."""
@@ -80,14 +85,12 @@ class Subject:
             return rollout_controller(
                 self.controller, self.controller_params, nominal, sim, episodes, steps, seed
             )
-        from ops_controller_ros.policy_switch import make_runner, needs_runner
-
-        if needs_runner(self.policy) or self.hold_steps != 1:  # switching, watchdog or held
-            runner = make_runner(self.policy, episodes, hold_steps=self.hold_steps)
-            return rollout_runner(runner, sim, episodes, steps, seed)
+        model = dataclasses.replace(self.model, hold_steps=self.hold_steps)
+        if model.layered:  # switching, watchdog or held: the runner, reading by reading
+            return rollout_runner(model.build(episodes), sim, episodes, steps, seed)
         options = self.observation_options()
         return rollout_policy(
-            self.policy.predict, sim, episodes, steps, seed, options, paired=self.paired
+            self.model.predictor(), sim, episodes, steps, seed, options, paired=self.paired
         )
 
     def evaluate(

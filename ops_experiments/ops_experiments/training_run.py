@@ -72,7 +72,7 @@ class TrainRun:
 
 def resolve_run(args, raw: list[str]) -> TrainRun:
     """The hyper-parameters, and for ``--resume`` what the stored run fixes (TrainError)."""
-    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
+    from ops_contract.policy_meta import PolicyLoadError, read_meta
 
     out = Path(args.out).expanduser().resolve()
     command_line = ["ros2", "run", "ops_gym_bridge", "train", *raw]
@@ -98,7 +98,7 @@ def resolve_run(args, raw: list[str]) -> TrainRun:
         params = _hyperparams(base, args)
         return TrainRun(args, command_line, out, params)
     try:
-        previous = read_metadata(out)
+        previous = read_meta(out).to_dict()
     except PolicyLoadError as exc:
         raise TrainError(f"cannot resume from {out}: {exc}") from None
     given = {a.split("=")[0] for a in raw if a.startswith("--")}
@@ -156,10 +156,10 @@ def _resolve_rig(args, out: Path, raw: list[str]) -> None:
 def _resume_rig(args, out: Path, raw: list[str]) -> None:
     """A resumed run keeps its model's rig and the ranges it draws its rigs from, unless the
     command line gives them anew."""
-    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
+    from ops_contract.policy_meta import PolicyLoadError, read_meta
 
     try:
-        stored = read_metadata(out)
+        stored = read_meta(out).to_dict()
     except PolicyLoadError:
         return  # resolve_run says what is wrong with the stored run
     if not args.rig_config and {"--realism", "--rig"}.isdisjoint(raw):
@@ -175,7 +175,7 @@ def _resume_rig(args, out: Path, raw: list[str]) -> None:
 def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> TrainRun:
     """``--init-from DIR``: the initial model's metadata fixes INIT_KEYS (a differing option
     is refused, naming both values) and the hyper-parameters (overrides on top)."""
-    from ops_controller_ros.policy_io import PolicyLoadError, read_metadata
+    from ops_contract.policy_meta import PolicyLoadError, read_meta
 
     if args.resume:
         raise TrainError("--init-from starts a new run; it cannot be combined with --resume")
@@ -183,7 +183,7 @@ def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> T
         raise TrainError(f"{out} already holds a model; choose another --out")
     source = Path(args.init_from).expanduser().resolve()
     try:
-        initial = read_metadata(source)
+        initial = read_meta(source).to_dict()
     except PolicyLoadError as exc:
         raise TrainError(f"--init-from: {exc}") from None
     if not (source / "model.zip").exists():
@@ -214,7 +214,11 @@ def _resolve_init(args, out: Path, command_line: list[str], raw: list[str]) -> T
     )
     if params.get("normalize_obs"):
         raise TrainError("--init-from: models trained with normalize_obs are not supported yet")
-    previous = {"history": [*initial.get("history", []), {"init_from": str(source)}]}
+    # the initial model's lineage, and all the training behind it (training_wall_s)
+    previous = {
+        "history": [*initial.get("history", []), {"init_from": str(source)}],
+        "training_wall_s": initial.get("training_wall_s"),
+    }
     return TrainRun(args, command_line, out, params, previous)
 
 

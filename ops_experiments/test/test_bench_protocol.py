@@ -201,9 +201,10 @@ def test_the_benchmark_evaluates_a_held_model_with_its_hold(tmp_path):
     bare = dataclasses.replace(subject, hold_steps=1).evaluate(("test",), [0], 2, 20)["test"]
     assert bare["curve_mean"] != again["curve_mean"]
     # Without the entry (every model from before the option): every reading, no hold_steps.
-    old = dataclasses.replace(
-        held, metadata={k: v for k, v in held.metadata.items() if k != "hold_steps"}
-    )
+    from ops_contract.policy_meta import PolicyMeta
+
+    entries = {k: v for k, v in held.metadata.items() if k != "hold_steps"}
+    old = dataclasses.replace(held, meta=PolicyMeta.from_dict(entries, path=held.path))
     plain = bench_worker.evaluate_run(spec, old)
     assert "hold_steps" not in plain and bench_worker.subject_of(spec, old).hold_steps == 1
     assert plain["splits"]["test"]["curve_mean"] == bare["curve_mean"]

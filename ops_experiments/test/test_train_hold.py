@@ -21,7 +21,7 @@ from ops_controller_ros.policy_io import (
     observation_spec_of,
     read_metadata,
 )
-from ops_controller_ros.policy_switch import make_runner
+from ops_controller_ros.runner_factory import build_runner
 from ops_experiments.rollouts import rollout_policy, rollout_runner
 from ops_sim_ros.env import OpsEnv
 from ops_sim_ros.vec_env import OpsVectorEnv
@@ -142,7 +142,7 @@ def test_the_trained_env_and_the_held_runner_give_the_policy_the_same_observatio
     )
     assert held_env.hold_steps == k
     every = OpsVectorEnv.from_config(cfg, num_envs=n, max_episode_steps=200)
-    runner = make_runner(loaded, n, hold_steps=k)
+    runner = build_runner(loaded, num_envs=n, hold_steps=k)
     assert isinstance(runner, HeldRunner)
     obs, _ = held_env.reset(seed=8301)
     every.reset(seed=8301)
@@ -159,7 +159,7 @@ def test_the_trained_env_and_the_held_runner_give_the_policy_the_same_observatio
     assert np.array_equal(held_env.sim.last.power, every.sim.last.power)
     # The two rollouts of evaluation agree to the last reading.
     via_env = rollout_policy(loaded.predict, cfg, n, 200, 8302, options, hold_steps=k)
-    via_runner = rollout_runner(make_runner(loaded, n, hold_steps=k), cfg, n, 200, 8302)
+    via_runner = rollout_runner(build_runner(loaded, num_envs=n, hold_steps=k), cfg, n, 200, 8302)
     assert via_env["power"].shape == (n, 101) and via_runner["power"].shape == (n, 201)
     assert np.array_equal(via_env["power"], via_runner["power"][:, ::k])
 

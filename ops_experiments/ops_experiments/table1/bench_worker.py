@@ -21,7 +21,7 @@ evaluation its small results (and the model) are moved in one ``os.replace`` to
 ``OUT/runs/<id>/``: a run is either absent there or complete. Files of a finished run::
 
     run.json          the spec, the outcome (final P_N per split), wall times
-    metadata.json     (training runs) the model's metadata (ops_controller_ros.policy_io)
+    metadata.json     (training runs) the model's metadata (ops_contract.policy_meta)
     model.zip         (training runs) the trained model (stable-baselines3)
     training.csv      (training runs) one row per training episode: step, return, length, P_N
     evaluation.json   the evaluation protocol (seeds, episodes, steps), per split and per
@@ -95,8 +95,9 @@ def observation_options(spec: dict) -> dict[str, Any]:
 def subject_of(spec: dict, policy=None):
     """The run as an evaluation :class:`~ops_experiments.subject.Subject`: its
     controller (told of the nominal rig: stage, detector and the run's rig, as its node is) or
-    its trained ``policy`` (on the controllers' very episodes, holding its decisions as its
-    metadata's ``hold_steps`` says, as ``evaluate`` does), on the run's mode."""
+    its trained model (``policy``: a ``ModelStack`` of :mod:`ops_controller_ros.runner_factory`,
+    or a loaded policy it is built from; on the controllers' very episodes, holding its
+    decisions as its metadata's ``hold_steps`` says, as ``evaluate`` does), on the run's mode."""
     from ops_contract.config import make_config
 
     from ..evaluate import with_hold
@@ -111,7 +112,8 @@ def subject_of(spec: dict, policy=None):
         "rig": rig,
     }
     if policy is not None:
-        return with_hold(Subject(name=spec["algo"], policy=policy, paired=True, **common))
+        model = _model_stack(policy)
+        return with_hold(Subject(name=spec["algo"], model=model, paired=True, **common))
     nominal = make_config(stage=spec["stage"], detector=spec["detector"], **rig)
     return Subject(
         name=spec["controller"],
@@ -120,6 +122,14 @@ def subject_of(spec: dict, policy=None):
         nominal=nominal,
         **common,
     )
+
+
+def _model_stack(policy):
+    """A ``ModelStack`` (:mod:`ops_controller_ros.runner_factory`) of ``policy`` (one already,
+    or a ``LoadedPolicy``: its metadata not read again)."""
+    from ops_controller_ros.runner_factory import ModelStack, load_model
+
+    return policy if isinstance(policy, ModelStack) else load_model(policy)
 
 
 def record_traces(policy, spec: dict, hold_steps: int = 1) -> dict[str, Any]:
@@ -139,6 +149,7 @@ def record_traces(policy, spec: dict, hold_steps: int = 1) -> dict[str, Any]:
         hold_steps=hold_steps,
         **env_overrides(spec),
     )
+    predict = _model_stack(policy).predictor()
     try:
         obs, info = env.reset(seed=int(spec["eval"]["seeds"][0]))
         out = {"steps": [], "power": [], "trace": []}
@@ -152,7 +163,7 @@ def record_traces(policy, spec: dict, hold_steps: int = 1) -> dict[str, Any]:
                 out["power"].append(round(float(info["power"]), 5))
                 out["trace"].append([round(float(x), 5) for x in env.trace()])
             if wanted:
-                obs, _, _, _, info = env.step(policy.predict(obs))
+                obs, _, _, _, info = env.step(predict(obs))
                 t = min(t + env.hold_steps, steps)
         return out
     finally:
@@ -269,9 +280,10 @@ def train(spec: dict, work: Path):
     """Train (or resume) in ``work`` as ``ros2 run ops_gym_bridge train`` does
     (:func:`~ops_experiments.build.build_model` with :func:`train_argv`, then
     :func:`~ops_experiments.learn.learn_and_save`); returns the stored model (a
-    :class:`~ops_controller_ros.policy_io.LoadedPolicy`) or raises KeyboardInterrupt after
-    saving."""
-    from ops_controller_ros.policy_io import PolicyLoadError, load_policy, read_metadata
+    :class:`~ops_controller_ros.policy_io.LoadedPolicy`, its metadata read once: the runner
+    factory builds on it without reading it again) or raises KeyboardInterrupt after saving."""
+    from ops_contract.policy_meta import PolicyLoadError, read_meta
+    from ops_controller_ros.policy_io import load_policy
 
     from .. import learn
     from ..build import build_model
@@ -280,7 +292,7 @@ def train(spec: dict, work: Path):
     previous = None
     if (work / "model.zip").exists():
         try:
-            previous = read_metadata(work)
+            previous = read_meta(work).to_dict()
         except PolicyLoadError:  # killed before its first save: start again
             previous = None
     if previous is None:
@@ -321,13 +333,13 @@ def execute(spec: dict, out: Path) -> dict:
     t0 = time.monotonic()
     record: dict[str, Any] = {"spec": spec}
     if spec["kind"] == "train":
+        from ops_contract.policy_meta import write_meta
+
         policy = train(spec, work)
-        history = policy.metadata.get("history", [])
+        history = policy.meta.entries.get("history", [])
         record["train_wall_s"] = round(sum(float(h.get("wall_s", 0.0)) for h in history), 1)
         record["timesteps"] = int(policy.model.num_timesteps)
-        from ops_controller_ros.policy_io import save_metadata
-
-        save_metadata(work, {**policy.metadata, "benchmark_run": spec["id"]})
+        write_meta(work, {**policy.meta.entries, "benchmark_run": spec["id"]})
         evaluation = evaluate_run(spec, policy)
     else:
         evaluation = evaluate_run(spec, None)
