@@ -43,6 +43,7 @@ from .cli_args import hold_steps_type
 from .envs import EPISODE_STEPS
 from .recording import new_bag_path
 from .subject import Subject
+from .summary import episode_time
 
 
 class EvaluationError(RuntimeError):
@@ -324,6 +325,8 @@ def evaluate(args, subject: Subject | None = None) -> dict[str, Any]:
         "episodes_per_seed": args.episodes,
         "seeds": list(args.seeds),
         "steps": args.steps,
+        # the episodes in seconds beside steps: time_base, step_s, episode_s
+        **episode_time(args.steps, subject.sim_config(args.splits[0], args.steps)),
         "splits": {},
     }
     t0 = time.monotonic()
@@ -416,11 +419,16 @@ def write_outputs(results: dict[str, Any], out: Path, plot: bool = True) -> list
     return written
 
 
+def _seconds(results: dict[str, Any]) -> str:
+    """`` = 20 s`` after the steps (at step_s each; the paper's 0.1 s under time_base step)."""
+    return f" = {results['episode_s']:g} s" if "episode_s" in results else ""
+
+
 def format_table(results: dict[str, Any]) -> str:
     lines = [
         f"{results['controller']} on stage {results['stage']}, {results['mode']} mode "
         f"({len(results['seeds'])} seeds x {results['episodes_per_seed']} episodes, "
-        f"{results['steps']} steps)",
+        f"{results['steps']} steps{_seconds(results)})",
         f"{'split':<6} {'final P_N/P_max':>20} {'worst episode':>14} {'episode return':>20} "
         f"{'initial P_N':>12}",
     ]

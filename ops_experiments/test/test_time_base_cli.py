@@ -60,6 +60,14 @@ def test_rig_takes_the_keys_of_physical_time_and_tells_the_controller(tmp_path):
     assert set(TIME_KEYS) <= set(cli_args.RIG_OPTION_KEYS)
     code, res = _evaluate(tmp_path, "--rig", "time_base=seconds", "step_s=0.01", "vibration=lab")
     assert code == 0 and res["rig"]["step_s"] == 0.01
+    assert (res["time_base"], res["step_s"], res["steps"], res["episode_s"]) == (
+        "seconds",
+        0.01,
+        20,
+        0.2,
+    )
+    code, res = _evaluate(tmp_path / "default")
+    assert code == 0 and (res["time_base"], res["episode_s"]) == ("step", 2.0)
 
 
 def test_episode_time_counts_seconds_beside_steps():
