@@ -26,6 +26,9 @@ class Tool(NamedTuple):
 #: name -> tool; ``figures`` has kinds of its own (``ops-bench figures physics``).
 TOOLS: dict[str, Tool] = {
     "physics": Tool("physics", "simulator and environment speed (batched physics, OpsEnv steps)"),
+    "physical-time": Tool(
+        "physical_time", "time_base seconds against step, the lab vibration's bands and cost"
+    ),
     "bridge": Tool("bridge", "Gymnasium bridge over DDS against the in-process environment"),
     "bridge-faults": Tool(
         "bridge_faults", "training over the bridge on a lossy, cut or stuck link"

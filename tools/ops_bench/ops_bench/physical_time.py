@@ -8,7 +8,7 @@ index.md; docs/physics.md, "Physical time and vibration").
     too slow to follow it keeps at best);
 (e) the cost: DelayNoise.sample and batched env-steps/s with and without the vibration.
 
-Usage: OPENBLAS_NUM_THREADS=1 python -m ops_bench.physical_time [--out DIR] [--quick]
+Usage: OPENBLAS_NUM_THREADS=1 ops-bench physical-time [--out DIR]
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from ops_bench import REPO
 from ops_bench.physics import rate
 
 OUT = REPO / "docs" / "results" / "physical_time"
-COMMAND = "OPENBLAS_NUM_THREADS=1 python -m ops_bench.physical_time"
+COMMAND = "OPENBLAS_NUM_THREADS=1 ops-bench physical-time"
 
 
 def _episodes(cfg, seed=11, envs=3, steps=250):

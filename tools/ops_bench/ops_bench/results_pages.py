@@ -98,7 +98,7 @@ OTHER_PAGES = (
         "physical_time/index.md",
         "Physical time and vibration",
         "time_base seconds against step, the walk and drift per simulated second, the lab "
-        "vibration's bands and cost, written by `python -m ops_bench.physical_time`",
+        "vibration's bands and cost, written by `ops-bench physical-time`",
     ),
 )
 
