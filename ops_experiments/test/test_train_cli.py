@@ -104,7 +104,7 @@ def test_model_loads_and_runs_and_stage_is_checked(trained):
         obs, *_ = env.step(action)
     check_stage(loaded, 3)
     with pytest.raises(
-        PolicyLoadError, match="model was trained for stage 3 but the simulator runs stage 5"
+        PolicyLoadError, match=r"model .*sac_n3 was trained for stage 3, the simulator runs stage 5"
     ):
         check_stage(loaded, 5)
 
@@ -155,7 +155,8 @@ def test_evaluate_transfer_to_another_mode_and_refused_stage(trained, tmp_path):
     assert list(res["splits"]) == ["test"]
     done = run("evaluate", trained, "--stage", 4, "--out", tmp_path / "s4")
     assert done.returncode == 2
-    assert "cannot evaluate a stage-3 model on stage 4" in done.stderr
+    assert "sac_n3 was trained for stage 3, the evaluation's simulator" in done.stderr
+    assert "runs stage 4" in done.stderr
     assert "Traceback" not in done.stderr
 
 
