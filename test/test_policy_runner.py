@@ -3,6 +3,7 @@ stable-baselines3 through the training command line."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 
 import numpy as np
@@ -94,7 +95,35 @@ def test_model_for_another_stage_is_refused(procs, trained_model):
     procs.ros2("run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=3", name="sim")
     runner = policy(procs, trained_model)
     assert runner.wait_exit(60) == 1
-    assert "model was trained for stage 2 but the simulator runs stage 3" in runner.output
+    assert f"model {trained_model} was trained for stage 2, the simulator runs stage 3" in (
+        runner.output
+    )
+    assert_no_traceback(runner.output)
+
+
+def test_a_model_set_while_running_is_refused_or_taken(procs, observer, trained_model, tmp_path):
+    """``ros2 param set /ops_policy model``: a model for another stage is refused with why and
+    the node goes on with its old one; a good one takes over."""
+    procs.ros2(
+        "run", "ops_sim_ros", "sim", "--ros-args", "-p", "stage:=2", "-p", "mode:=easy", name="sim"
+    )
+    runner = policy(procs, trained_model)
+    runner.wait_for(r"step \d+: P_N/P_max", timeout=60)
+
+    def param_set(model) -> str:
+        cmd = [*ros2_command(), "param", "set", "/ops_policy", "model", str(model)]
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+        return done.stdout + done.stderr
+
+    said = param_set(REPO / "models" / "n3_easy")
+    assert "was trained for stage 3, the simulator runs stage 2" in said, said
+    runner.wait_for(f"the node goes on with {trained_model}", timeout=10)
+    copy = tmp_path / "again"
+    shutil.copytree(trained_model, copy)
+    assert "Set parameter successful" in param_set(copy)
+    runner.wait_for(f"loaded PPO model for stage 2 .* from {copy}", timeout=30)
+    runner.wait_for(r"step \d+: P_N/P_max", timeout=30)
+    wait_for_moved_setpoints(observer)
     assert_no_traceback(runner.output)
 
 

@@ -45,7 +45,7 @@ from ops_contract.rig_params import RIG_PARAM_KEYS
 from ops_contract.ros_interface import NodeFatalError, ParameterError, run_node
 from rcl_interfaces.msg import SetParametersResult
 
-from .loop_node import ControllerLoopNode
+from .loop_node import EXECUTOR, ControllerLoopNode
 from .policy_hold import (
     HOLD_STEPS,
     HOLD_STEPS_AUTO,
@@ -214,14 +214,17 @@ class PolicyNode(ControllerLoopNode):
 
     def _on_model_change(self, params) -> SetParametersResult:
         """``model`` set while the node runs: the new model if the node can run it, else
-        refused with why (the old one goes on)."""
-        for p in params:
-            try:
-                stack = self._load(p.value)
-            except ParameterError as exc:
-                self.get_logger().warning(f"{exc}; the node goes on with {self._stack.path}")
-                return SetParametersResult(successful=False, reason=str(exc))
-            self._use(stack)
+        refused with why (the old one goes on). rclpy may hand the same parameter more than
+        once (each declare_all's pre-set callback passes the whole list on): the last counts."""
+        asked = [p.value for p in params if p.name == MODEL.name]
+        if not asked:
+            return SetParametersResult(successful=True)
+        try:
+            stack = self._load(asked[-1])
+        except ParameterError as exc:
+            self.get_logger().warning(f"{exc}; the node goes on with {self._stack.path}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        self._use(stack)
         return SetParametersResult(successful=True)
 
     def _check_rig(self, stack: ModelStack) -> None:
@@ -278,7 +281,7 @@ class PolicyNode(ControllerLoopNode):
 
 
 def main(args=None):
-    raise SystemExit(run_node(PolicyNode, args))
+    raise SystemExit(run_node(PolicyNode, args, executor=EXECUTOR))
 
 
 if __name__ == "__main__":

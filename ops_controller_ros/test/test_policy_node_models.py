@@ -89,7 +89,11 @@ def test_a_model_set_while_running_is_refused_with_why_and_a_good_one_takes_over
         assert node._stack.path == first and np.array_equal(node.ctrl.command(), command)
     other = tmp_path / "other"
     shutil.copytree(first, other)
+    loads = []
+    load = node._load
+    node._load = lambda model: (loads.append(model), load(model))[1]
     assert _set_model(node, other) == (True, "")
+    assert loads == [str(other)]  # read and loaded once
     assert node.get_parameter("model").value == str(other) and node._stack.path == other
     assert node.ctrl.runner is node._runner and node._runner.state is None
     np.testing.assert_array_equal(node.ctrl.command(), command)  # on from the same set-points
