@@ -175,7 +175,7 @@ def declare_all(
             msg_value = Parameter(spec.name, value=value).get_parameter_value()
             node.set_descriptor(spec.name, static, msg_value)
         values[spec.name] = value
-    node.add_pre_set_parameters_callback(lambda params: _ints_to_floats(params, floats))
+    _convert_ints_for(node, floats)
     by_name = {s.name: s for s in specs}
     if on_change is None:  # nothing can apply a change: every parameter is fixed
         by_name = {n: replace(s, read_only=True) for n, s in by_name.items()}
@@ -204,6 +204,22 @@ def _validate(node: Node, specs: dict[str, ParamSpec], params, on_change) -> Set
     if ours and on_change is not None:
         return on_change(ours)
     return SetParametersResult(successful=True)
+
+
+#: The node attribute holding the names of its float parameters, across declare_all calls.
+_FLOAT_NAMES = "_ops_float_parameter_names"
+
+
+def _convert_ints_for(node: Node, floats: set[str]) -> None:
+    """One pre-set callback per node turns integers into doubles for every declare_all's floats:
+    rclpy concatenates the lists its pre-set callbacks return, so a second callback would hand
+    each parameter on twice."""
+    names = getattr(node, _FLOAT_NAMES, None)
+    if names is None:
+        names = set()
+        setattr(node, _FLOAT_NAMES, names)
+        node.add_pre_set_parameters_callback(lambda params: _ints_to_floats(params, names))
+    names.update(floats)
 
 
 def _ints_to_floats(params: list[Parameter], floats: set[str]) -> list[Parameter]:
