@@ -23,7 +23,7 @@ by default.
 Output directory (``--out DIR``)::
 
     DIR/model.zip          the trained model (stable-baselines3)
-    DIR/metadata.json      what the policy runner needs (ops_controller_ros.policy_io)
+    DIR/metadata.json      what the policy runner needs (ops_contract.policy_meta)
     DIR/logs/              progress.csv and TensorBoard events (a resumed run keeps the
                            earlier parts' as progress.partK.csv: experiments.progress_log)
     DIR/checkpoints/       model_<steps>_steps.zip on a schedule (+ metadata.json)
