@@ -9,8 +9,8 @@ worst episode), the first minute and environment step where the mean reached ``-
 (0.95), and, where the folder has ``eval/evaluation.json`` (``evaluate --out DIR/eval``), that
 held-out evaluation's mean and worst episode.
 
-``--run LABEL=DIR`` (repeatable); without it, every ``runs/dagger/*`` folder that has a
-``learning.csv`` and the shipped fast-SAC models ``models/n5_{easy,medium,hard}``.
+``--run LABEL=DIR`` (repeatable); without it, the shipped students ``models/*_dagger`` and the
+shipped fast-SAC models ``models/n5_{easy,medium,hard}``.
 """
 
 from __future__ import annotations
@@ -130,7 +130,7 @@ def table(items: list[dict], reach: float) -> list[str]:
 
 
 def default_runs() -> list[tuple[str, Path]]:
-    runs = [(p.name, p) for p in sorted((REPO / "runs" / "dagger").glob("*")) if _usable(p)]
+    runs = [(p.name, p) for p in sorted((REPO / "models").glob("*_dagger")) if _usable(p)]
     runs += [(f"{n} (fast SAC)", REPO / "models" / n) for n in DEFAULT_SAC]
     return [(label, p) for label, p in runs if _usable(p)]
 
