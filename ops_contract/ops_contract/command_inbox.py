@@ -11,12 +11,18 @@ and keeps the newest valid one. Identical serialized messages share one verdict,
 rejected message costs a dictionary lookup each. The reader keeps ``depth`` messages: a valid
 command is kept through a flood of up to ``depth`` messages between two steps (4000).
 
+The events executor (``-p executor:=events``, ops_contract.executors) ignores callback groups: it
+takes each message as it comes (in C++) and passes it, serialized, to the subscription's
+callback, which queues it (the last ``depth`` kept) for the next step; the step takes those first,
+then any still in the reader.
+
 A lockstep simulator steps on each command, so it keeps its callback (``sim_node``).
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable
 
 from rclpy.callback_groups import CallbackGroup
@@ -60,10 +66,12 @@ class CommandInbox:
         qos = QoSProfile(
             depth=depth, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE
         )
+        # Messages the events executor took for us (the default one never calls back)
+        self._delivered: deque[bytes] = deque(maxlen=depth)
         self.subscription = node.create_subscription(
             Float32MultiArray,
             topic,
-            lambda _msg: None,  # never called: the executor does not wait on this group
+            self._deliver,
             qos,
             callback_group=_NeverWaited(),
             raw=True,
@@ -89,8 +97,13 @@ class CommandInbox:
         self._verdicts[raw] = problem
         return problem, msg
 
+    def _deliver(self, raw: bytes) -> None:
+        self._delivered.append(raw)
+
     def _take_all(self) -> list[bytes]:
-        handle, raw = self.subscription.handle, []
+        raw = list(self._delivered)
+        self._delivered.clear()
+        handle = self.subscription.handle
         with handle:
             while True:
                 got = handle.take_message(Float32MultiArray, True)

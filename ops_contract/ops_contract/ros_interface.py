@@ -217,8 +217,12 @@ def _stop_requested(signum, frame) -> None:
     """Ctrl-C / SIGTERM: nothing to do here; rclpy's handler has shut the context down."""
 
 
-def run_node(make_node: Callable[[], Node], args=None) -> int:
+def run_node(make_node: Callable[[], Node], args=None, executor: str | None = None) -> int:
     """The ``main()`` of every node: init, spin, clean exit on Ctrl-C / SIGTERM.
+
+    ``executor``: the node's default for its ``executor`` parameter (declared here, after the
+    node is built: ``default`` or ``events``, :mod:`~ops_contract.executors`); None: the node
+    has no such parameter and rclpy's default executor spins it.
 
     A :class:`ParameterError` raised while building the node stops it before it spins, with the
     message on stderr and exit code 2; a :class:`NodeFatalError` raised while spinning stops it
@@ -230,14 +234,19 @@ def run_node(make_node: Callable[[], Node], args=None) -> int:
     # spin returns; they then call the Python handler found here. Python's default raises
     # KeyboardInterrupt wherever the main thread is, even inside rclpy's Task constructor, which
     # then printed "Exception ignored in Future.__del__ ... AttributeError" on exit (seen in CI).
+    # The events executor replaces rclpy's handlers with its own, to the same end.
     for stop in (signal.SIGINT, signal.SIGTERM):
         signal.signal(stop, _stop_requested)
     rclpy.init(args=args)
+    from .executors import spin  # (executors declares a parameter: node_params imports us)
+
     node = None
+    spinner = None
     code = 0
     try:
         node = make_node()
-        rclpy.spin(node)
+        spinner = _executor_of(node, executor)
+        spin(spinner, node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ParameterError as exc:
@@ -252,7 +261,21 @@ def run_node(make_node: Callable[[], Node], args=None) -> int:
         # Ctrl-C / SIGTERM shut the context down while rclpy was taking a message (it then raises
         # from inside the executor): that is the requested exit, not an error.
     finally:
+        if spinner is not None:
+            spinner.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def _executor_of(node: Node, default: str | None):
+    """The executor the node's ``executor`` parameter names (declared with ``default``; None:
+    no parameter, the default executor)."""
+    from .executors import executor_spec, make_executor
+    from .node_params import declare_all
+
+    name = "default"
+    if default is not None:
+        name = declare_all(node, [executor_spec(default)])["executor"]
+    return make_executor(name, node.context)

@@ -32,6 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
+from ops_contract.executors import subscribe_with_info
 from ops_contract.node_params import ParamSpec, declare_all
 from ops_contract.observation import pulse_energies_from_trace
 from ops_contract.rig_params import RIG_PARAMS, rig_config, rig_values
@@ -81,6 +82,9 @@ LOOP_PARAMS = [
 ]
 #: The parameters a running loop applies at once; the others are fixed after start.
 LIVE_PARAMS = ("rate_hz", "timeout_s")
+#: The default of every controller node's ``executor`` parameter (declared by run_node,
+#: ops_contract.executors)
+EXECUTOR = "default"
 
 
 class ControllerLoopNode(Node):
@@ -132,13 +136,14 @@ class ControllerLoopNode(Node):
         # latched subscription gives the set-points at start (a lockstep simulator publishes
         # only when commanded); the best-effort ones carry the running loop: a lost message
         # is not waited for (a reliable one costs seconds per loss on a lossy link).
-        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
-        self.create_subscription(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_READINGS)
-        self.create_subscription(
-            Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS
+        # (each callback takes the message info: its sequence number pairs a step's messages)
+        subscribe_with_info(self, Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
+        subscribe_with_info(self, Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_READINGS)
+        subscribe_with_info(
+            self, Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS
         )
         self._applied_delays = False  # see use_applied_delays
-        self.create_subscription(Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
+        subscribe_with_info(self, Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
         # Re-sends are due a few sample periods after a command (CommandTracker.resend_after).
         self.create_timer(0.01, self._watchdog)
@@ -237,8 +242,8 @@ class ControllerLoopNode(Node):
         step (``ops/delays_actual``, an oracle no rig has: the authors' observation set), as
         ``observe(..., applied=)``; a reading waits for them."""
         self._applied_delays = True
-        self.create_subscription(
-            Float32MultiArray, TOPIC_DELAYS_ACTUAL, self._on_actual, QOS_READINGS
+        subscribe_with_info(
+            self, Float32MultiArray, TOPIC_DELAYS_ACTUAL, self._on_actual, QOS_READINGS
         )
 
     # ------------------------------------------------------------------ subclass hooks
@@ -351,9 +356,9 @@ class ControllerLoopNode(Node):
         self._pairing.take("actual", sequence_number(info), actual)
 
     def _on_power(self, msg: Float32, info):
-        # Two positional parameters and no default: rclpy passes the MessageInfo only to a
-        # callback that cannot be called with the message alone (with ``info=None`` it never
-        # did, so the steps between readings were always taken as 1 over DDS).
+        # The MessageInfo comes through subscribe_with_info (rclpy passes it only to a callback
+        # it takes for one that needs it: with a plain ``info=None`` default it never did, so
+        # the steps between readings were always taken as 1 over DDS).
         power = self._guard.take(TOPIC_POWER, power_from_msg, msg)
         seq, stamp = sequence_number(info), source_stamp(info)
         self._pairing.on_power(seq)

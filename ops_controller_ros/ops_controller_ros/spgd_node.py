@@ -13,7 +13,7 @@ from dataclasses import fields
 
 from ops_contract.ros_interface import ParameterError, run_node
 
-from .loop_node import ControllerLoopNode
+from .loop_node import EXECUTOR, ControllerLoopNode
 from .param_fields import param_specs
 from .spgd import SpgdParams, SpgdPid
 
@@ -44,7 +44,7 @@ class SpgdNode(ControllerLoopNode):
 
 
 def main(args=None):
-    raise SystemExit(run_node(SpgdNode, args))
+    raise SystemExit(run_node(SpgdNode, args, executor=EXECUTOR))
 
 
 if __name__ == "__main__":

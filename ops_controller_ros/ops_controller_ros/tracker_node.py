@@ -20,7 +20,7 @@ from ops_contract.rig_file import OPTICS_DEFAULTS, OPTICS_LIMITS
 from ops_contract.ros_interface import QOS_RELIABLE, TOPIC_DIAGNOSTICS, ParameterError, run_node
 from std_msgs.msg import Float32MultiArray
 
-from .loop_node import ControllerLoopNode
+from .loop_node import EXECUTOR, ControllerLoopNode
 from .rig_optics import (
     given_parameters,
     hop_every_on_rig,
@@ -190,7 +190,7 @@ class TrackerNode(ControllerLoopNode):
 
 
 def main(args=None):
-    raise SystemExit(run_node(TrackerNode, args))
+    raise SystemExit(run_node(TrackerNode, args, executor=EXECUTOR))
 
 
 if __name__ == "__main__":

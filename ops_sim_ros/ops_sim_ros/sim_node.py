@@ -158,6 +158,8 @@ PARAMS = [
     ),
 ]
 _SPECS = {p.name: p for p in PARAMS}
+#: The default of the node's ``executor`` parameter (run_node declares it, ops_contract.executors)
+EXECUTOR = "default"
 _WARN_PERIOD_S = 2.0
 #: Warn when the steps of the last RATE_WINDOW_S seconds ran below this share of rate_hz.
 RATE_WINDOW_S = 2.0
@@ -241,6 +243,9 @@ class SimNode(Node):
         self._result = self._sim.reset()
         self._command = self._sim.setpoints_fs[0].copy()  # latest accepted set-points
         self._steps = 0
+        # Free-running steps at which no new valid command had come since the step before (a
+        # controller that keeps up commands every step: docs/interfaces.md, diagnostics)
+        self._steps_without_command = 0
         self._episodes = 1
         self._timer = None
         self._diag_timer = None
@@ -270,8 +275,8 @@ class SimNode(Node):
         )
 
     def _step(self):
-        if self._inbox is not None:
-            self._take_commands()
+        if self._inbox is not None and not self._take_commands():
+            self._steps_without_command += 1
         self._result = self._sim.step_setpoints(self._command[None, :])
         self._steps += 1
         self._publish()
@@ -326,6 +331,7 @@ class SimNode(Node):
                 ("vibration", self._config.vibration),
                 ("lockstep", self._values["lockstep"]),
                 ("step", self._steps),
+                ("steps_without_command", self._steps_without_command),
                 ("episode", self._episodes),
                 ("power", f"{float(self._result.power[0]):.4f}"),
             )
@@ -357,7 +363,8 @@ class SimNode(Node):
     def _command_problem(self, msg: Float32MultiArray) -> str | None:
         return check_layout(msg) or check_command(list(msg.data), self._config.stage)
 
-    def _take_commands(self):
+    def _take_commands(self) -> bool:
+        """Apply the newest valid command queued since the last step; True if there was one."""
         msg = self._inbox.take_latest()
         report = self._inbox.rejections_to_report(_WARN_PERIOD_S)
         if report is not None:
@@ -366,8 +373,10 @@ class SimNode(Node):
                 f"rejected {total} delay command(s) in the last {_WARN_PERIOD_S:g} s or so "
                 f"({problems}); set-points unchanged"
             )
-        if msg is not None:
-            self._apply_command(msg)
+        if msg is None:
+            return False
+        self._apply_command(msg)
+        return True
 
     def _on_command(self, msg: Float32MultiArray):
         problem = self._command_problem(msg)
@@ -432,7 +441,7 @@ class SimNode(Node):
 
 
 def main(args=None):
-    raise SystemExit(run_node(SimNode, args))
+    raise SystemExit(run_node(SimNode, args, executor=EXECUTOR))
 
 
 if __name__ == "__main__":
