@@ -63,9 +63,9 @@ def test_taking_a_latency_drops_the_work_of_the_old_pairing():
     emptied, crashed the node. Taking a latency drops it; the tracker acquires anew."""
     tracker, _, _ = run(1, 1, "hard", 46, steps=60)
     assert tracker.locked
-    tracker._knot_job = object()  # a knot test still to run (defer_knot_test)
+    tracker.knot.job = object()  # a knot test still to run (defer_knot_test)
     tracker._take_latency(2)
-    assert tracker._knot_job is None and not tracker.locked and tracker.latency == 2
+    assert tracker.knot.job is None and not tracker.locked and tracker.latency == 2
     assert not tracker.think()
     assert np.all(np.isfinite(next_command(tracker)))
 

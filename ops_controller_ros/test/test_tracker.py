@@ -119,7 +119,8 @@ def test_a_lock_whose_readings_stay_low_is_dropped_and_acquired_again():
     sim = BatchedSimulation(cfg, num_envs=1, seed=6)
     r = sim.reset(seed=6)
     tracker = NeverFailingFit(cfg, setpoints_fs=r.setpoints_fs[0], seed=6)
-    tracker._start_tracking(np.full(5, 0.37))  # a wrong estimate: far from the stacking point
+    # a wrong estimate: far from the stacking point
+    tracker.lock.start(np.full(5, 0.37), tracker.loop.tick)
     tracker.calibration.gain = 20.0  # and a detector calibration run to its bound
     powers = []
     for _ in range(120):
@@ -144,7 +145,7 @@ def _lock_checked(powers) -> tuple[int, int]:
     tracker's false-lock rule reading by reading, stopping at the first drop."""
     cfg = make_config(stage=5, mode="medium", split="test")
     tracker = PhaseTracker(cfg, setpoints_fs=np.zeros(5), seed=6)
-    tracker._start_tracking(np.full(5, 0.37))
+    tracker.lock.start(np.full(5, 0.37), tracker.loop.tick)
     for n, power in enumerate(powers, 1):
         tracker._check_false_lock(float(power))
         if tracker.false_locks:
@@ -221,8 +222,9 @@ def test_the_fits_weigh_the_readings_by_their_own_residuals():
     floor = TrackerParams().fit_noise_floor
     _, clean, _ = run("extreme", 4, steps=150)
     _, noisy, _ = run("medium", 4, steps=150, env=dict(detector_noise=0.01))
-    assert clean.locked and clean._reading_sd() < 1.5 * floor, clean._reading_sd()
-    assert noisy.locked and 0.005 < noisy._reading_sd() < 0.02, noisy._reading_sd()
+    clean_sd, noisy_sd = (t.noise.reading_sd(t.params) for t in (clean, noisy))
+    assert clean.locked and clean_sd < 1.5 * floor, clean_sd
+    assert noisy.locked and 0.005 < noisy_sd < 0.02, noisy_sd
 
 
 @pytest.mark.parametrize("seed", [5, 6])

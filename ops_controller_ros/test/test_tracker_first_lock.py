@@ -10,6 +10,7 @@ import numpy as np
 from ops_contract.config import make_config
 from ops_controller_ros.controllers import next_command
 from ops_controller_ros.tracker import PhaseTracker, TrackerParams
+from ops_controller_ros.tracker.tracking import gain_prior, level_prior
 from ops_sim_ros.simulation import BatchedSimulation
 
 
@@ -74,7 +75,8 @@ def test_a_detector_the_acquisition_fitted_wrong_is_fitted_again_at_the_lock():
     assert knots <= 5, (held, knots, gain)
     assert abs(gain - 1.0) < 0.003, (held, knots, gain)
     # the fit of the gain is no part of the in-process tracker (its power pins the level)
-    assert PhaseTracker(make_config(5, "hard", "test"), seed=1)._gain_prior() == 0.0
+    in_process = PhaseTracker(make_config(5, "hard", "test"), seed=1)
+    assert gain_prior(in_process.params, 0, in_process.window_length) == 0.0
 
 
 def test_a_lock_with_a_gain_off_holds_through_a_slow_tracker():
@@ -104,7 +106,8 @@ def test_a_lock_whose_detector_offset_is_off_holds():
     old = _held_with_a_gain_off(2, 1.016, 0.15, 300, p_gap=0.1, offset=4e-4, lock_offset_walk=0)
     assert old[0] < min(held for held, _, _ in runs) and old[1] > 20, (old, runs)
     # like the gain's, no part of the in-process tracker (its power pins the level)
-    assert PhaseTracker(make_config(5, "hard", "test"), seed=1)._level_prior() == 0.0
+    p = PhaseTracker(make_config(5, "hard", "test"), seed=1).params
+    assert level_prior(p, gain_prior(p, 0, p.window)) == 0.0
 
 
 def test_the_line_is_fitted_again_at_a_lock_on_readings_near_the_stack_only():
@@ -123,7 +126,7 @@ def test_the_line_is_fitted_again_at_a_lock_on_readings_near_the_stack_only():
     u, _, age = tracker._window()
     cal = tracker.calibration
     before = (cal.gain, cal.offset, cal.detector_provisional)
-    last_power = tracker._history[-1][1][-1]
+    last_power = tracker.window.latest[1][-1]
     assert last_power < 0.95  # a lock is taken on the search's last reading, far from the stack
     fit = tracker._fit_detector_to
     assert not fit(tracker.estimate, tracker.drift, u, age, last=1, min_power=0.95)
@@ -156,7 +159,7 @@ def test_a_noise_that_would_widen_the_fits_is_measured_twice():
     tracker.observe(power, y + rng.normal(0.0, 0.004, y.shape))  # a line still moving
     command = next_command(tracker)
     tracker.observe(power, y + rng.normal(0.0, 0.0002, y.shape))
-    assert tracker._noise_var is None  # 0.003: to be confirmed
+    assert tracker.noise.var is None  # 0.003: to be confirmed
     np.testing.assert_array_equal(next_command(tracker), command)  # the repeat goes on
     tracker.observe(power, y + rng.normal(0.0, 0.0002, y.shape))
     assert tracker.measured_noise is not None and tracker.measured_noise < 0.001

@@ -125,25 +125,33 @@ def test_a_quiet_drift_is_held_stiffer_until_a_knot_or_a_cut_knot_test():
     noisy_drift_prior_cycles); a clean detector keeps its own."""
     params = TrackerParams()
     noisy = PhaseTracker(make_config(5, "hard", "test", realism="lab"), params, seed=2)
-    noisy._tick = params.quiet_after + 5
-    assert noisy._drift_prior() == params.quiet_drift_prior_cycles
-    noisy._knot_tick = noisy._tick - 3  # a knot taken three readings ago: the slope changes
-    assert noisy._drift_prior() == params.knotted_drift_prior_cycles
-    noisy._knot_tick = noisy._tick - params.quiet_after  # long ago: quiet again
-    assert noisy._drift_prior() == params.quiet_drift_prior_cycles
-    noisy._knot_tick = -(10**9)
-    noisy._knot_cut_short = True  # the last knot test was cut short
-    assert noisy._drift_prior() == params.noisy_drift_prior_cycles
+    noisy.loop.tick = params.quiet_after + 5
+    assert _drift_prior(noisy) == pytest.approx(params.quiet_drift_prior_cycles, rel=1e-12)
+    noisy.knot.tick = noisy.loop.tick - 3  # a knot taken three readings ago: the slope changes
+    assert _drift_prior(noisy) == pytest.approx(params.knotted_drift_prior_cycles, rel=1e-12)
+    noisy.knot.tick = noisy.loop.tick - params.quiet_after  # long ago: quiet again
+    assert _drift_prior(noisy) == pytest.approx(params.quiet_drift_prior_cycles, rel=1e-12)
+    noisy.knot.tick = -(10**9)
+    noisy.knot.cut_short = True  # the last knot test was cut short
+    assert _drift_prior(noisy) == pytest.approx(params.noisy_drift_prior_cycles, rel=1e-12)
     clean = PhaseTracker(make_config(5, "hard", "test"), params, seed=2)
-    clean._tick = params.quiet_after + 5
-    assert clean._drift_prior() == params.drift_prior_cycles
+    clean.loop.tick = params.quiet_after + 5
+    assert _drift_prior(clean) == pytest.approx(params.drift_prior_cycles, rel=1e-12)
     off = PhaseTracker(
         make_config(5, "hard", "test", realism="lab"),
         TrackerParams(quiet_drift_prior_cycles=0.0),
         seed=2,
     )
-    off._tick = params.quiet_after + 5
-    assert off._drift_prior() == params.noisy_drift_prior_cycles
+    off.loop.tick = params.quiet_after + 5
+    assert _drift_prior(off) == pytest.approx(params.noisy_drift_prior_cycles, rel=1e-12)
+
+
+def _drift_prior(tracker: PhaseTracker) -> float:
+    """The drift prior a path fit of ``tracker`` would take now (its fit run's std)."""
+    u, y, age = np.zeros((2, 5)), np.zeros((2, 32)), np.array([1.0, 0.0])
+    run = tracker._fit_run(np.zeros((1, 5)), np.zeros((1, 5)), u, y, age, 1)
+    weight = run._pb.prior_w[0, 2 * 5]  # the drift's prior weight: 1 / std^2
+    return float(weight**-0.5)
 
 
 def test_a_noisy_detector_looks_for_a_knot_further_back():
@@ -185,15 +193,15 @@ def test_the_detector_noise_is_measured_from_readings_a_step_apart():
     detector as noisy held at 0.94). They are no measure: the repeat goes on until two come a
     step apart."""
     drifted = _first_readings([50])
-    assert drifted._noise_var is None  # not measured from readings 50 steps apart
+    assert drifted.noise.var is None  # not measured from readings 50 steps apart
     assert np.array_equal(next_command(drifted), drifted.setpoints_fs)  # the repeat goes on
     measured = _first_readings([50, 1])
-    assert measured._noise_var is not None and not measured._noisy()
+    assert measured.noise.var is not None and not measured._noisy()
     assert measured.window_length == P.window
     # Drift over 50 steps would have read as noise: the same readings a step apart, not
     # (the hard mode's drift between the first two readings is what made the 0.034)
     direct = _first_readings([1])
-    assert direct._noise_var is not None and not direct._noisy()
+    assert direct.noise.var is not None and not direct._noisy()
 
 
 def test_two_identical_readings_are_no_measure_of_the_noise():
@@ -207,7 +215,7 @@ def test_two_identical_readings_are_no_measure_of_the_noise():
     tracker.observe(float(res.power[0]), res.pulse_energies[0])
     command = next_command(tracker)
     tracker.observe(float(res.power[0]), res.pulse_energies[0])  # the same acquisition again
-    assert tracker._noise_var is None
+    assert tracker.noise.var is None
     np.testing.assert_array_equal(next_command(tracker), command)  # the repeat goes on
     res = sim.step_setpoints(command[None])
     tracker.observe(float(res.power[0]), res.pulse_energies[0])
@@ -218,7 +226,7 @@ def test_a_detector_never_read_a_step_apart_stays_unmeasured():
     """A rig that never gives two readings a step apart: after a few repeats the tracker goes
     on acquiring, the noise unmeasured (taken as clean unless told)."""
     tracker = _first_readings([3] * 12)
-    assert tracker._noise_var is None and not tracker._noisy()
+    assert tracker.noise.var is None and not tracker._noisy()
     assert tracker.locked or tracker.window_length == P.window
 
 
@@ -239,11 +247,11 @@ def test_no_knot_test_on_a_window_across_an_outage():
     for _ in range(270):  # the rig holds its set-points through a 5.4 s outage at 50 Hz
         res = sim.step_setpoints(held)
     tracker.observe(float(res.power[0]), res.pulse_energies[0], steps=100)
-    assert tracker._knot_job is None
+    assert tracker.knot.job is None
     powers = []
     for _ in range(tracker.window_length - 1):  # the gap still in the window
         res = sim.step_setpoints(next_command(tracker)[None])
         tracker.observe(float(res.power[0]), res.pulse_energies[0])
-        assert tracker._knot_job is None
+        assert tracker.knot.job is None
         powers.append(float(res.power[0]))
     assert tracker.locked and min(powers[2:]) >= 0.95, powers

@@ -1,9 +1,12 @@
 """Model-based phase retrieval with drift tracking: a stacking controller that needs no training.
 
 The package: :mod:`.params` (the parameters, declared once), :mod:`.fit` (the fits as pure
-functions), :mod:`.acquisition` (the global search, the local re-lock), :mod:`.knots` (the knot
-test), :mod:`.period` (whole-cycle moves, period correction, calibration) and :mod:`.core` (the
-state machine, :class:`PhaseTracker`).
+functions), :mod:`.model` (the rig as the fits see it), and the state, each part with the module
+that changes it: :mod:`.commands` (set-points, excursions, commands in flight), :mod:`.window`
+(the readings), :mod:`.tracking` (the estimate, the priors of its fits, the false-lock rule),
+:mod:`.noise` (the detector's noise), :mod:`.acquisition` (the global search), :mod:`.knots` (the
+knot test), :mod:`.period` (whole-cycle moves, period correction) and :mod:`.latency_check`;
+:mod:`.core` holds :class:`PhaseTracker`, the thin facade that runs a reading through them.
 
 The controller knows the stacker's physics (:class:`ops_sim_ros.physics.PulseStacker` built from
 the *nominal* configuration: stage, wavelength, pulse width, detector) and estimates the hidden
@@ -58,8 +61,9 @@ Set-points always move by the smallest step that reaches the target modulo one p
 within the actuator range.
 """
 
-from .core import FIT_VAR_FITS, FIT_VAR_MIN, PhaseTracker
+from .core import PhaseTracker
 from .fit import PathFits
+from .noise import FIT_VAR_FITS, FIT_VAR_MIN
 from .params import NODE_FIELDS, TrackerParams, node_defaults, node_param_specs
 
 __all__ = [

@@ -399,7 +399,7 @@ class PathFitRun:
     Run a unit at a time: :meth:`run` until a deadline, again later, :meth:`result` from where
     it got to (a knot test spread over a rig's readings; :func:`fit_paths` runs one at once).
     ``chunk``: the starts go in groups of this many, a group's iteration a unit (51 knot
-    hypotheses iterate in ~10 ms here: a step of a 100 Hz rig; see :func:`_lm_iterations`)."""
+    hypotheses at once can take a step of a 100 Hz rig; see :func:`_lm_iterations`)."""
 
     def __init__(
         self,

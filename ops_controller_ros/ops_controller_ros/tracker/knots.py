@@ -1,20 +1,36 @@
 """The knot test: a stage's drift changed slope within the window.
 
-A tracking fit that does not explain its readings is tried again under one hypothesis per
-stage, knot position and side (:func:`knot_hypotheses`), all fitted at once
-(:func:`~.fit.fit_paths` with ``knots``); a hypothesis wins only if it explains the readings
-clearly better (:meth:`KnotTest._knot_fit`). With ``defer_knot_test`` the test waits until the
-command is out (:meth:`KnotTest.think`).
+A tracking fit that does not explain its readings is tried again under one hypothesis per stage,
+knot position and side (:func:`knot_hypotheses`), all fitted at once (:class:`~.fit.PathFitRun`
+with ``knots``); a hypothesis wins only if it explains the readings clearly better
+(:func:`choose`). With ``defer_knot_test`` the test waits until the command is out
+(:meth:`~.core.PhaseTracker.think`); with a real-time budget on a noisy detector it may run on
+over the next readings (:class:`KnotRun`), its winner then tried again on the window it ends at
+(:func:`retry`). :class:`Knots` is the test's state; the functions here are its steps.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
 from . import fit
+from .params import TrackerParams
+
+#: A knot test spread over readings iterates its hypotheses in groups of this many, a group's
+#: iteration at a time, so that each reading's budget holds: all of a noisy detector's
+#: hypotheses at once take several times a 100 Hz rig's step per iteration.
+KNOT_RUN_CHUNK = 8
+#: ... and, unless ``knot_keep`` says otherwise, only this many of them iterate on after
+#: ``knot_prune_after`` iterations, with the first (no knot): one group. A spread test is then
+#: about a third of the units of work, and ends in a third of the readings.
+KNOT_RUN_KEEP = 7
+#: With a budget that cuts the knot test short on a noisy detector, one test in this many is run
+#: again (is it still cut short?); the others are left out (:meth:`Knots.skipped`).
+KNOT_RETRY = 20
 
 
 class KnotRun(NamedTuple):
@@ -28,14 +44,80 @@ class KnotRun(NamedTuple):
 
 
 class KnotJob(NamedTuple):
-    """A knot test left for :meth:`KnotTest.think`: the arguments of ``_knot_fit`` and the
-    tracker's state before the answer (the plain fit's path, objective and period error)."""
+    """A knot test left for ``think``: the plain fit it is to beat (predicted, x, drift, cost,
+    u, y, age, ratio) and the lock's state before the answer (the drift, and the plain fit's
+    path, objective and period error)."""
 
     fit: tuple  # (predicted, x, drift, cost, u, y, age, ratio)
     drift_before: np.ndarray
     path: np.ndarray
     objective: float
     ratio: float
+
+
+@dataclass
+class Knots:
+    """The knot test's state of one run (from a reset)."""
+
+    taken: int = 0  # knot hypotheses taken
+    tests_cut: int = 0  # tests on a noisy detector its budget cut short or left out: no knot
+    tests_spread: int = 0  # tests run over several readings (slice_knot_test)
+    cut_short: bool = False  # the last test run was cut short
+    skips: int = 0  # tests left out since then
+    tick: int = -(10**9)  # the reading the last knot was taken at
+    job: KnotJob | None = None  # the test think() is to run (defer_knot_test)
+    run: KnotRun | None = None  # a test spread over readings, under way
+
+    @property
+    def testing(self) -> bool:
+        """A knot test asked for or under way."""
+        return self.job is not None or self.run is not None
+
+    def won(self, tick: int) -> None:
+        self.taken += 1
+        self.tick = tick
+
+    def skipped(self, deadline, noisy: bool) -> bool:
+        """Whether to leave this knot test out: on a noisy detector whose last test its budget
+        cut short (and so was inconclusive), the next ones would be cut too, and each blocks a
+        real-time loop for its whole compute. One test in ``KNOT_RETRY`` runs anyway and tries
+        again."""
+        if deadline is None or not self.cut_short or not noisy:
+            return False
+        self.skips += 1
+        if self.skips % KNOT_RETRY == 0:
+            return False
+        self.tests_cut += 1
+        return True
+
+    def ran(self, deadline, noisy: bool) -> bool:
+        """A test has run until ``deadline``: whether it counts (False: cut short on a noisy
+        detector, where hypotheses iterated once or twice win on the noise, so it is left
+        inconclusive)."""
+        if deadline is not None and time.perf_counter() >= deadline and noisy:
+            self.tests_cut += 1
+            self.cut_short = True
+            return False
+        self.cut_short = False
+        return True
+
+
+def setting(p: TrackerParams, name: str, noisy: bool):
+    """The knot test's setting ``name`` for this detector: ``noisy_<name>`` on a noisy one
+    (``knot_readings``, ``knot_walk_sigmas``, ``knot_iterations``, ``knot_penalty``)."""
+    return getattr(p, f"noisy_{name}" if noisy else name)
+
+
+def deadline(p: TrackerParams):
+    """When the knot test and the fits after it must stop (``knot_budget_ms``), or None."""
+    budget = p.knot_budget_ms
+    return time.perf_counter() + budget / 1e3 if budget else None
+
+
+def spreads(p: TrackerParams, deadline, noisy: bool) -> bool:
+    """Whether a knot test the budget cuts short runs on over the next readings: on a noisy
+    detector. A clean one takes the test as far as it got: its knots matter a reading sooner."""
+    return deadline is not None and p.slice_knot_test and noisy
 
 
 def knot_hypotheses(n: int, k: int, knot_readings: int, start_cycles: float):
@@ -58,10 +140,8 @@ def knot_starts(predicted, drift, age, knots, ratio: bool) -> np.ndarray:
     at the knot: the knotted stage moved on by the change for every step since the reading
     before the knot (a straight path through the bent end needed twice the iterations for the
     same fits). In a window with a whole-cycle move (``ratio``) the path starts straight, moved
-    by the change throughout: bent starts explained the phase step of a move on a model off in
-    wavelength as a knot before the period fit could (medium, wavelength -2 %, seeds 0 and 3:
-    readings of 0.07 after the lock; extreme unchanged: seeds 1000/1001 x 3000 steps
-    97.90/97.63 % straight, 97.90/97.66 % bent)."""
+    by the change throughout: bent starts explain the phase step of a move on a model off in
+    wavelength as a knot before the period fit can."""
     stage, first, change = knots
     m, k = stage.size, age.size
     line = predicted[None] - age[:, None] * drift[None]  # (K, N)
@@ -74,220 +154,107 @@ def knot_starts(predicted, drift, age, knots, ratio: bool) -> np.ndarray:
     return path0
 
 
-#: A knot test spread over readings iterates its hypotheses in groups of this many, a group's
-#: iteration at a time (~2 ms here), so that each reading's budget holds: all 51 of a noisy
-#: detector's hypotheses at once take ~10 ms an iteration, and the start ~20 ms, which made a
-#: 100 Hz loop late for the test's readings (over DDS, lab, hard: the readings before a loss).
-KNOT_RUN_CHUNK = 8
-#: ... and, unless ``knot_keep`` says otherwise, only this many of them iterate on after
-#: ``knot_prune_after`` iterations, with the first (no knot): one group. A spread test is then
-#: 31 units of work instead of 91, and ends in a third of the readings.
-KNOT_RUN_KEEP = 7
+def start_run(
+    path_fit_run,
+    p: TrackerParams,
+    noisy: bool,
+    predicted,
+    drift,
+    window_steps,
+    u,
+    y,
+    age,
+    ratio=False,
+    spread=False,
+) -> KnotRun:
+    """The hypotheses of a knot test on the window (u, y, age; ``window_steps`` the step of each
+    of its readings), started from the prediction and ``drift``, not yet fitted
+    (``path_fit_run``: the tracker's :class:`~.fit.PathFitRun` of its arguments). ``spread``:
+    to run over readings, in groups of ``KNOT_RUN_CHUNK`` and pruned to ``KNOT_RUN_KEEP``
+    unless ``knot_keep`` is set."""
+    keep = p.knot_keep or (KNOT_RUN_KEEP if spread else 0)
+    n = drift.size
+    knots = knot_hypotheses(n, len(u), setting(p, "knot_readings", noisy), p.knot_start_cycles)
+    path0 = knot_starts(predicted, drift, age, knots, ratio)
+    m = knots[0].size
+    fits = path_fit_run(
+        path0[:, -1],
+        np.tile(drift, (m, 1)),
+        u,
+        y,
+        age,
+        setting(p, "knot_iterations", noisy),
+        ratio=ratio,
+        knots=knots,
+        prune=(p.knot_prune_after, keep) if keep else None,
+        path0=path0,
+        chunk=KNOT_RUN_CHUNK if spread else None,
+    )
+    return KnotRun(fits, knots, window_steps[-len(u) :], drift.copy())
 
-#: With a budget that cuts the knot test short on a noisy detector, one test in this many is run
-#: again (is it still cut short?); the others are left out (:meth:`KnotTest._knot_test_skipped`).
-KNOT_RETRY = 20
+
+class Choice(NamedTuple):
+    """The outcome of a knot test: the fit taken (x, drift, cost), its path, whole cost, period
+    error and detector line (gain, level steps), and whether a knot won."""
+
+    best: tuple
+    path: np.ndarray
+    objective: float
+    ratio: float
+    line: tuple
+    won: bool
 
 
-class KnotTest:
-    """The knot test of :class:`~.core.PhaseTracker` (a mixin: it works on the tracker's
-    state)."""
+def choose(fits, current: tuple, current_fit: tuple, penalty: float) -> Choice:
+    """The best of the present fit (``current``: x, drift, cost; ``current_fit``: its path,
+    objective, ratio and line, as :meth:`.tracking.Lock.fit_state` gives them) and the knot
+    test's ``fits`` (the first: no knot, iterated as long as the hypotheses, so that a knot must
+    beat the best fit without one), taken in turn: a hypothesis only by ``penalty``."""
+    best = current
+    best_path, best_obj, best_ratio, best_line = current_fit
+    won = False
+    for i in range(fits.objective.size):
+        if fits.objective[i] + (penalty if i else 0.0) < best_obj:
+            best = (fits.x[i], fits.drift[i], float(fits.data_cost[i]))
+            best_path, best_obj, won = fits.path[i], fits.objective[i], i > 0
+            best_ratio, best_line = fits.ratio[i], (float(fits.gain[i]), float(fits.level[i]))
+    return Choice(best, best_path, best_obj, best_ratio, best_line, won)
 
-    def think(self, spread: bool = True) -> bool:
-        """Work that may wait until the command is out: the knot test the last reading asked
-        for, with ``defer_knot_test`` (a node calls this after publishing the command, in the
-        time before the next step; :meth:`observe` calls it first if nobody did), and the next
-        part of a knot test spread over readings (``slice_knot_test``). True when their outcome
-        changed the command already given: :meth:`command` then gives the revised one (a node
-        sends it at once; if the step ran on the first one, its reading is not paired with the
-        revised command and is not used). ``spread`` False: the deferred test only (``observe``
-        runs it first: a spread test moves on in the time after a command, not twice a reading)."""
-        deadline = None
-        aimed = (self.estimate, self.drift)  # what the command given aims by
-        if self._knot_job is not None:
-            job, self._knot_job = self._knot_job, None
-            # the state the test starts from: as it was before the answer
-            self.drift, self._path = job.drift_before, job.path
-            self._objective, self._ratio = job.objective, job.ratio
-            deadline = self._knot_deadline()
-            predicted, x, drift, cost, u, y, age, ratio = job.fit
-            if self._spreads_knot_test(deadline):
-                if self._knot_run is None:  # (one under way: this reading goes untested)
-                    run = self._start_knot_run(predicted, u, y, age, ratio, spread=True)
-                    if run.fits.run(deadline):  # done within the budget: as if not spread
-                        x, drift, cost = self._knot_choice(run.fits.result(), x, drift, cost)
-                    else:  # on over the next readings; this one takes the plain fit
-                        self._knot_run = run
-                        self.knot_tests_spread += 1
-            else:
-                x, drift, cost = self._knot_fit(*job.fit, deadline=deadline)
-            self._finish_track(predicted, x, drift, cost, u, y, age, ratio, deadline)
-        if spread and self._knot_run is not None:
-            self._advance_knot_run(deadline or self._knot_deadline())
-        changed = not all(map(np.array_equal, aimed, (self.estimate, self.drift)))
-        self._revise = self._awaiting and changed
-        return self._revise
 
-    def _spreads_knot_test(self, deadline) -> bool:
-        """Whether a knot test the budget cuts short runs on over the next readings: on a noisy
-        detector. A clean one takes the test as far as it got (extreme, no detector noise, 15 %
-        of the commands late, the node's 4 ms: 87.1 / 90.8 % of readings >= 0.95 with 55 / 41
-        losses, spread 83.7 / 81.8 % with 124 each; ``ops-bench tracker-late --mode extreme
-        --realism ideal --seeds 1002 1003`` at commit 321ffa4): its knots matter a reading
-        sooner."""
-        return deadline is not None and self.params.slice_knot_test and self._noisy()
+def spread_winner(run: KnotRun, penalty: float):
+    """The hypothesis (index) a finished spread test found, if one beat no knot by ``penalty``;
+    else None."""
+    fits = run.fits.result()
+    best = int(np.argmin(fits.objective[1:])) + 1
+    if fits.objective[best] + penalty < fits.objective[0]:
+        return best, fits
+    return None
 
-    def _start_knot_run(self, predicted, u, y, age, ratio=False, spread=False) -> KnotRun:
-        """The hypotheses of :meth:`_knot_fit` on this window (u, y, age), started from the
-        prediction, not yet fitted. ``spread``: to run over readings, in groups of
-        ``KNOT_RUN_CHUNK`` and pruned to ``KNOT_RUN_KEEP`` unless ``knot_keep`` is set (see
-        :class:`.fit.PathFitRun`)."""
-        p = self.params
-        keep = p.knot_keep or (KNOT_RUN_KEEP if spread else 0)
-        knots = knot_hypotheses(
-            self.stage, len(u), self._knot_setting("knot_readings"), p.knot_start_cycles
-        )
-        path0 = knot_starts(predicted, self.drift, age, knots, ratio)
-        m = knots[0].size
-        fits = self._path_fit_run(
-            path0[:, -1],
-            np.tile(self.drift, (m, 1)),
-            u,
-            y,
-            age,
-            self._knot_setting("knot_iterations"),
-            ratio=ratio,
-            knots=knots,
-            prune=(p.knot_prune_after, keep) if keep else None,
-            path0=path0,
-            chunk=KNOT_RUN_CHUNK if spread else None,
-        )
-        steps = np.array([h[2] for h in self._history], dtype=np.int64)[-len(u) :]
-        return KnotRun(fits, knots, steps, self.drift.copy())
 
-    def _advance_knot_run(self, deadline) -> None:
-        """The knot test under way, on until ``deadline`` (one iteration at least); at its end
-        its winner, if a hypothesis won, is tried on the window now (:meth:`_retry_knot`)."""
-        run = self._knot_run
-        if self.estimate is None or self._recovering is not None:
-            self._knot_run = None  # the lock it was to refine is gone
-            return
-        if not run.fits.run(deadline):
-            return
-        self._knot_run = None
-        fits = run.fits.result()
-        penalty = self._knot_setting("knot_penalty")
-        best = int(np.argmin(fits.objective[1:])) + 1
-        if fits.objective[best] + penalty < fits.objective[0]:
-            self._retry_knot(run, best, fits)
-
-    def _retry_knot(self, run: KnotRun, best: int, fits) -> None:
-        """A knot the spread test found in its (older) window, fitted again on the window now
-        against no knot (each from the estimate now; the knot at the same step, or before the
-        window if it left it, with the change found), and taken if it still wins by the
-        penalty."""
-        stage = int(run.knots[0][best])
-        knot_step = run.steps[int(run.knots[1][best])]
-        u, y, age = self._window()
-        k = len(u)
-        steps = np.array([h[2] for h in self._history], dtype=np.int64)
-        first = min(max(int(np.searchsorted(steps, knot_step)), 1), k - 1)
-        change = float(fits.drift[best, stage] - run.drift[stage])
-        knots = (np.array([0, stage]), np.array([k, first]), np.array([0.0, change]))
-        ratio = self._hop_tick is not None and self._tick - self._hop_tick <= k - 2
-        path0 = knot_starts(self.estimate, self.drift, age, knots, ratio)
-        path0[1, :, stage] -= path0[1, -1, stage] - self.estimate[stage]  # bent back from now
-        retry = self._fit_paths(
-            path0[:, -1],
-            np.tile(self.drift, (2, 1)),
-            u,
-            y,
-            age,
-            self._knot_setting("knot_iterations"),
-            ratio=ratio,
-            knots=knots,
-            path0=path0,
-        )
-        if retry.objective[1] + self._knot_setting("knot_penalty") >= retry.objective[0]:
-            return
-        self._path, self._objective, self._ratio = retry.path[1], retry.objective[1], retry.ratio[1]
-        self.estimate, self.drift = retry.x[1], self._bounded(retry.drift[1])
-        self.calibration.take_fitted_line(float(retry.gain[1]), float(retry.level[1]))
-        self.knots += 1
-        self._knot_tick = self._tick
-
-    def _knot_test_skipped(self, deadline) -> bool:
-        """Whether to leave this knot test out: on a noisy detector whose last test its budget
-        cut short (and so was inconclusive), the next ones would be cut too, and each blocks a
-        real-time loop for its whole compute (~50 ms on a 2-core machine: five readings of a
-        100 Hz rig). One test in ``KNOT_RETRY`` runs anyway and tries again."""
-        if deadline is None or not self._knot_cut_short or not self._noisy():
-            return False
-        self._knot_skips += 1
-        if self._knot_skips % KNOT_RETRY == 0:
-            return False
-        self.knot_tests_cut += 1
-        return True
-
-    def _knot_setting(self, name: str):
-        """The knot test's setting ``name`` for this detector: ``noisy_<name>`` on a noisy one
-        (``knot_readings``, ``knot_walk_sigmas``, ``knot_iterations``, ``knot_penalty``)."""
-        return getattr(self.params, f"noisy_{name}" if self._noisy() else name)
-
-    def _knot_deadline(self):
-        """When the knot test and the fits after it must stop (``knot_budget_ms``), or None."""
-        budget = self.params.knot_budget_ms
-        return time.perf_counter() + budget / 1e3 if budget else None
-
-    def _knot_fit(self, predicted, x, drift, cost, u, y, age, ratio=False, deadline=None):
-        """The best of the present fit (x, drift, cost) and the knot hypotheses, all fitted at
-        once: each stage's slope changed from each of the last ``knot_readings`` readings of the
-        window on (``noisy_knot_readings`` on a noisy detector), started either way (one reading
-        is even in the change); the steps before the knot keep the present drift. Taken in turn,
-        a hypothesis wins only if its whole cost plus ``knot_penalty`` (``noisy_knot_penalty``
-        on a noisy detector) is below the best so far (the path and period error of the winner
-        are kept).
-
-        The first start is no knot (its knot after the window): the present fit iterated as
-        long as the hypotheses, so that a knot must beat the best fit without one, not a fit of
-        fewer iterations (seen: a model 2 % off in wavelength, whose moves a well-started
-        knot fit explained better than a three-iteration path fit: knots at the moves)."""
-        if self._knot_test_skipped(deadline):
-            return x, drift, cost
-        run = self._start_knot_run(predicted, u, y, age, ratio)
-        run.fits.run(deadline)
-        if deadline is not None and time.perf_counter() >= deadline and self._noisy():
-            # Cut short on a noisy detector: hypotheses iterated once or twice win on the noise
-            # (lab, hard, the node's 4 ms against a ~50 ms test: 92.6-97.4 % of readings >= 0.95
-            # with late commands, 98.7-99.3 % with the cut test left inconclusive; docs/tracker.md)
-            self.knot_tests_cut += 1
-            self._knot_cut_short = True
-            return x, drift, cost
-        self._knot_cut_short = False
-        return self._knot_choice(run.fits.result(), x, drift, cost)
-
-    def _knot_choice(self, fits, x, drift, cost):
-        """The best of the present fit (x, drift, cost) and the knot test's ``fits`` (the first:
-        no knot), a hypothesis only by ``knot_penalty``; its path and period error kept."""
-        best, best_path, best_obj = (x, drift, cost), self._path, self._objective
-        best_ratio, best_line, won = self._ratio, (self._gain_step, self._level_step), False
-        penalty = self._knot_setting("knot_penalty")
-        for i in range(fits.objective.size):
-            if fits.objective[i] + (penalty if i else 0.0) < best_obj:
-                best = (fits.x[i], fits.drift[i], float(fits.data_cost[i]))
-                best_path, best_obj, won = fits.path[i], fits.objective[i], i > 0
-                best_ratio, best_line = fits.ratio[i], (float(fits.gain[i]), float(fits.level[i]))
-        self._path, self._objective, self._ratio = best_path, best_obj, best_ratio
-        self._gain_step, self._level_step = best_line
-        self.knots += won
-        if won:
-            self._knot_tick = self._tick
-        return best
-
-    def _walk_jump(self) -> float:
-        """The largest move of the fitted path over its last step, away from the drift, in
-        units of the walk's std (a knot shows here before the readings' residual grows)."""
-        if self._path.shape[0] < 2:
-            return 0.0
-        step = self._path[-1] - self._path[-2] - self._gap * self.drift
-        return float(np.max(np.abs(step))) / (self._walk_sigma() * self._gap**0.5)
+def retry(fit_paths, run: KnotRun, best: int, fits, now: tuple, iterations: int, penalty: float):
+    """The winner ``best`` of a spread test (its ``fits``) tried on the window now (``now``:
+    the step of each reading, the estimate, the drift, u, y, age, ratio) against no knot, each
+    from the estimate now: the knot at the same step, or before the window if it left it, with
+    the change found. The fits (``fit_paths``: the tracker's, run to their end; ``iterations``
+    each) if the knot still wins by ``penalty`` (the knot's is the second); else None."""
+    window_steps, estimate, drift, u, y, age, ratio = now
+    stage = int(run.knots[0][best])
+    knot_step = run.steps[int(run.knots[1][best])]
+    k = len(age)
+    first = min(max(int(np.searchsorted(window_steps, knot_step)), 1), k - 1)
+    change = float(fits.drift[best, stage] - run.drift[stage])
+    knots = (np.array([0, stage]), np.array([k, first]), np.array([0.0, change]))
+    path0 = knot_starts(estimate, drift, age, knots, ratio)
+    path0[1, :, stage] -= path0[1, -1, stage] - estimate[stage]  # bent back from now
+    out = fit_paths(
+        path0[:, -1],
+        np.tile(drift, (2, 1)),
+        u,
+        y,
+        age,
+        iterations,
+        ratio=ratio,
+        knots=knots,
+        path0=path0,
+    )
+    return None if out.objective[1] + penalty >= out.objective[0] else out

@@ -1,12 +1,12 @@
-"""Does the rig's latency match the one the tracker was told (issue 30)?
+"""Does the rig's latency match the one the tracker was told?
 
 A tracker told the wrong latency pairs each reading with the wrong command: its fits do not
 explain the window, it never locks, and nothing says why. The check re-pairs the last readings
 with the commands under each candidate latency and runs a small global search (random starts,
 then Levenberg-Marquardt; :mod:`.fit`) on each pairing: the latency whose pairing the model
 explains best, by a clear margin and within the fit tolerance, is the rig's. Pure functions; the
-tracker calls :func:`measure_latency` once it has gone ``latency_check_after`` readings without a
-lock, and again every as many readings while it stays unlocked.
+tracker's :class:`LatencyWatch` starts :func:`measure_latency` once most of its last
+``latency_check_after`` readings were dim, and again every as many readings while that lasts.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from .fit import cost, refine
 MARGIN = 0.25
 #: Readings the check re-pairs (the latest): about two fit windows.
 CHECK_READINGS = 12
-#: Random starts of a pairing's global search, and the best of them refined: with 128 and 4 the
-#: search missed the rig's own pairing in 4 of 12 checks (medium, rig 4 steps, told 2).
+#: Random starts of a pairing's global search, and the best of them refined: fewer starts miss
+#: the rig's own pairing in a good share of the checks.
 CANDIDATES = 512
 KEEP = 8
 #: Checks that find nothing are run again at once this many times (on the newer readings)
@@ -99,78 +99,86 @@ def measure_latency(
 
 
 class LatencyWatch:
-    """The latency check of :class:`~.core.PhaseTracker` (a mixin on the tracker's state):
-    commands and readings are kept; once most of the last ``latency_check_after`` readings are
-    below ``latency_check_below`` the check runs, one candidate per reading, and a latency the
-    readings clearly fit better than the told one is taken (``latency_note`` says so).
+    """The latency check's state: the latency in use, what the checks found (kept over resets),
+    and the commands and readings the next check re-pairs (from a reset). Once most of the last
+    ``latency_check_after`` readings are below ``latency_check_below`` a check runs, one
+    candidate per reading, and a latency the readings clearly fit better than the one in use is
+    taken (``note`` says so).
 
-    Most, not all: an acquisition search under a wrong latency still hits a bright point now
-    and then, and a count of readings in a row started over at each (a check at reading 75
-    instead of 26, over DDS). After a check that takes a latency, or :data:`RETRIES` + 1 that
-    find nothing, the window starts over."""
+    Most, not all: an acquisition search under a wrong latency still hits a bright point now and
+    then, and a count of dim readings in a row would start over at each. After a check that
+    takes a latency, or :data:`RETRIES` + 1 that find nothing, the count starts over."""
 
-    def _watch_reset(self) -> None:
-        self._commands_sent: deque = deque(maxlen=64)  # (step it acts at without latency, u)
-        self._readings_kept: deque = deque(maxlen=CHECK_READINGS)  # (step, reading)
-        self._dim_flags: deque = deque(maxlen=max(self.params.latency_check_after, 1))
-        self._retries = 0
-        self._latency_job = None
+    def __init__(self, told: int, p) -> None:
+        self.latency = told  # in use: a command acts this many steps after the step that took it
+        self.told = told
+        self.note = None  # why the latency in use is not the told one
+        self.changes = 0
+        self.checks = 0
+        self.costs: dict = {}  # the last check's residual per candidate latency
+        self.restart(p)
 
-    def _watch_command(self, u: np.ndarray) -> None:
-        self._commands_sent.append((self._step + 1, u.copy()))
+    def restart(self, p) -> None:
+        self.commands: deque = deque(maxlen=64)  # (step it acts at without latency, u)
+        self.readings: deque = deque(maxlen=CHECK_READINGS)  # (step, weighed reading)
+        self.dim: deque = deque(maxlen=max(p.latency_check_after, 1))
+        self.retries = 0
+        self.job = None
 
-    def _watch_reading(self, y: np.ndarray) -> None:
-        p = self.params
-        self._readings_kept.append((self._step, self._weighed(y)))
+    def command(self, step: int, u: np.ndarray) -> None:
+        """A command given after the reading at ``step``."""
+        self.commands.append((step + 1, u.copy()))
+
+    def command_taken(self, taken: int, expected: int) -> None:
+        """The last command, expected at step ``expected``, was taken at step ``taken``."""
+        if taken > expected and self.commands and self.commands[-1][0] == expected:
+            self.commands[-1] = (taken, self.commands[-1][1])
+
+    def reading(self, p, step: int, y, power: float, rig, tolerance, rng):
+        """A reading ``y`` at ``step`` whose power read ``power``; a check runs on the model now
+        (``rig``, a :class:`~.model.RigModel`), taking a fit within ``tolerance()``, its random
+        starts drawn from ``rng``. Returns a latency to take, or None."""
+        self.readings.append((step, rig.weighed(y)))
         if not p.latency_check_after:
-            return
-        if self._latency_job is not None:
+            return None
+        if self.job is not None:
             try:
-                next(self._latency_job)
+                next(self.job)
             except StopIteration as done:
-                self._latency_job = None
-                self.latency_costs = done.value[1]
-                if done.value[0] is not None:
-                    self._take_latency(done.value[0])
-                self._retries = self._retries + 1 if done.value[0] is None else 0
-                if done.value[0] is not None or self._retries > RETRIES:
-                    self._dim_flags.clear()
-                    self._retries = 0
-            return
-        self._dim_flags.append(self.last_power < p.latency_check_below)
-        full = len(self._dim_flags) == p.latency_check_after
-        if full and 4 * sum(self._dim_flags) >= 3 * p.latency_check_after:
-            self.latency_checks += 1
-            self._latency_job = measure_latency(
-                self._fit_stacker,
-                self.period_fs,
-                list(self._commands_sent),
-                list(self._readings_kept),
+                self.job = None
+                found, self.costs = done.value
+                self.retries = self.retries + 1 if found is None else 0
+                if found is not None or self.retries > RETRIES:
+                    self.dim.clear()
+                    self.retries = 0
+                return found
+            return None
+        self.dim.append(power < p.latency_check_below)
+        full = len(self.dim) == p.latency_check_after
+        if full and 4 * sum(self.dim) >= 3 * p.latency_check_after:
+            self.checks += 1
+            self.job = measure_latency(
+                rig.fit_stacker,
+                rig.period_fs,
+                list(self.commands),
+                list(self.readings),
                 self.latency,
-                self._tolerance(),
-                self._check_rng,
+                tolerance(),
+                rng,
                 p.latency_check_longest,
             )
+        return None
 
-    def _take_latency(self, latency: int) -> None:
-        """Pair readings with commands ``latency`` steps back from now on, and acquire anew."""
-        self.latency_note = (
+    def take(self, latency: int, step: int):
+        """Pair readings with commands ``latency`` steps back from now (``step``) on; (the
+        set-points acting now, or None if no command given acts yet; the commands still on their
+        way, as :attr:`.commands.Loop.in_flight` holds them)."""
+        self.note = (
             f"the readings fit a latency of {latency} steps, not the {self.latency} in use (the "
-            f"rig it was told of: {self.latency_told}); using {latency}"
+            f"rig it was told of: {self.told}); using {latency}"
         )
         self.latency = latency
-        self.latency_changes += 1
-        acting = [u for at, u in self._commands_sent if at <= self._step - latency]
-        if acting:
-            self._acting = acting[-1].copy()
-        self._in_flight = deque(
-            [at, u.copy(), None] for at, u in self._commands_sent if at > self._step - latency
-        )
-        self.estimate = None
-        self._search = None
-        self._recovering = None
-        self._knot_job = None  # a deferred knot test of the old pairing: nothing left to test
-        self._knot_run = None
-        self._revise = False
-        self._bad_fits = 0
-        self._history.clear()
+        self.changes += 1
+        acting = [u for at, u in self.commands if at <= step - latency]
+        in_flight = deque([at, u.copy(), None] for at, u in self.commands if at > step - latency)
+        return (acting[-1].copy() if acting else None), in_flight

@@ -81,7 +81,7 @@ class TrackerParams:
     window: int = _declare(7, "readings per fit", 2, 64, node=True)
     # On a noisy detector (noise std, assumed or measured, >= noisy_threshold) a fit takes
     # max(window, noisy_window) readings: more readings average the noise, while a short window
-    # follows the drift's knots sooner (measured: docs/tracker.md, issue 20).
+    # follows the drift's knots sooner (docs/tracker.md weighs the two).
     noisy_window: int = _declare(
         10,
         "readings per fit once the detector is found noisy (the longer of the two is used)",
@@ -97,7 +97,7 @@ class TrackerParams:
     )
     # ... and the assumed or told noise (detector_noise, the rig's digitizer and source): lower,
     # for it is the detector's alone, while the repeated first reading also sees the delay lines
-    # move between the two steps (extreme mode's drift reads as 0.002-0.005 there).
+    # move between the two steps (a fast drift reads as a few 1e-3 there).
     told_noisy_threshold: float = _declare(
         0.0001,
         "assumed or told noise std from which the detector counts as noisy",
@@ -106,10 +106,9 @@ class TrackerParams:
     )
     # ... and the noise the tracking fits find (the median over their last 25 of half the mean
     # squared change of the residuals from one reading to the next): the repeated first reading,
-    # taken far from the optimum, also sees the lines' jitter (a clean detector in hard mode
-    # reads 2-4e-4 there), and the residuals' level also holds the model's misfit (1-2e-4 in
-    # some extreme episodes). Untold and taken as clean, a noise of 5e-4 to 1e-3 was read as
-    # knots: hard mode, 40-120 false knots in 300 readings (docs/tracker.md).
+    # taken far from the optimum, also sees the lines' jitter, and the residuals' level also
+    # holds the model's misfit, so neither tells a noise of a few 1e-4 from a clean detector.
+    # Untold and taken as clean, such a noise is read as knots (docs/tracker.md).
     fit_noisy_threshold: float = _declare(
         0.0002,
         "noise std the tracking fits find, from which the detector counts as noisy (0: never)",
@@ -166,15 +165,14 @@ class TrackerParams:
     )
     quiet_after: int = _declare(100, "readings without a knot taken that count as quiet", 1)
     # ... and the other way: within quiet_after readings of a knot taken, a drift whose slope
-    # changes is followed by a looser estimate (lab, extreme, tuning seeds: 0.962 -> 0.970
-    # with knot_walk_sigmas 1.5 beside it; hard unchanged, 0.991). Never where no knot is
-    # taken, as over DDS with the knot tests cut (0: as noisy_drift_prior_cycles).
+    # changes is followed by a looser estimate (docs/tracker.md). Never where no knot is
+    # taken, as with the knot tests cut short (0: as noisy_drift_prior_cycles).
     knotted_drift_prior_cycles: float = _declare(
         0.002, "... on a noisy detector within quiet_after readings of a knot taken (0: off)", 0.0
     )
     # The fastest drift the tracker believes, cycles per step (a fit beyond is clipped): on a
-    # periodic landscape a drift near a cycle per step reads like none (seen: a stage's drift
-    # estimate run up to 1.0 by knot hypotheses on a model 2 % off; extreme drifts <= 0.015).
+    # periodic landscape a drift near a cycle per step reads like none, and knot hypotheses on
+    # a model off in wavelength could run an estimate there; the modes' drifts stay far below.
     max_drift_cycles: float = _declare(
         0.1, "the fastest drift believed, cycles per step", 0.0, 0.5, low_open=True
     )
@@ -205,13 +203,12 @@ class TrackerParams:
         node=True,
     )
     # ... and where it weighs nothing, nothing but the excursions pins the slot energies'
-    # level: a detector gain 0.3 % off reads as delay errors of ~0.01 cycles, which the
-    # excursions contradict (misfits, false knots, lost locks on the simulated rig; a rig's
-    # calibrated full scale is 0.4-2 % off, and an acquisition's own fit of it was seen 1 %
-    # off). The tracking fits of the first window after an acquisition's lock then fit the
-    # gain too, with this prior std about the present one; later fits leave it to the
-    # detector's line (a gain free in every fit explained the level lost to a drift estimate
-    # run ahead, and took knots that were none).
+    # level: a detector gain a fraction of a percent off reads as delay errors of ~0.01 cycles,
+    # which the excursions contradict (misfits, false knots, lost locks), and a rig's calibrated
+    # full scale, or an acquisition's own fit of it, is off by that much. The tracking fits of
+    # the first window after an acquisition's lock then fit the gain too, with this prior std
+    # about the present one; later fits leave it to the detector's line (a gain free in every
+    # fit would explain the level lost to a drift estimate run ahead, and take false knots).
     lock_gain_walk: float = _declare(
         0.005,
         "how far one tracking fit in the first window after a lock may move the detector's "
@@ -221,9 +218,7 @@ class TrackerParams:
     )
     # ... and the same for the offset: a detector's reading of no light a few 1e-4 of the full
     # scale off reads like light in every empty slot of the stack, which only delay errors make
-    # (simulated rig, offset calibrated 2e-4 or more high: 15 of 24 runs lost the lock;
-    # in process, +4e-4: 7 of 20 seeds; docs/rig.md, "The detector's offset, measured in every
-    # record").
+    # (docs/rig.md, "The detector's offset, measured in every record").
     lock_offset_walk: float = _declare(
         0.0005,
         "how far one tracking fit in the first window after a lock may move the detector's "
@@ -233,8 +228,8 @@ class TrackerParams:
     )
     # The detector's line fitted again at a lock takes only the readings since the lock that
     # read this much power or more where power_weight is 0: away from the stack a delay error
-    # moves the slot energies as much as the gain does (over DDS, refits on first locked
-    # readings of 0.90-0.91 gave gains 3-4 % off, of 0.96 within 1 %, of 0.98 and more 0.3 %).
+    # moves the slot energies as much as the gain does, and a refit on such readings puts the
+    # gain percents off; near the stack they measure it.
     lock_refit_power: float = _declare(
         0.95,
         "the least P_N/P_max of a reading the detector's line is fitted again on at a lock, "
@@ -249,9 +244,7 @@ class TrackerParams:
     # on, that stage's drift changes by a variable with prior std knot_prior_cycles (0: never
     # try); a hypothesis is taken if its whole cost plus knot_penalty is the lowest. The prior
     # keeps the hypotheses off the mirror images of a change (a path that reads the same with
-    # the change's sign turned, at twice its size): extreme, seeds 1000 and 1001 x 3000 steps
-    # of `ops-bench tracker-knots` at commit 51e857d, 96.0-96.5 % locked with 0.03, 97.6-97.8 %
-    # with 0.015.
+    # the change's sign turned, at twice its size); `ops-bench tracker-knots` measures it.
     knot_tolerance: float = _declare(
         1e-6, "residual of a tracking fit that asks for the knot test", 0.0, low_open=True
     )
@@ -261,9 +254,9 @@ class TrackerParams:
     knot_start_cycles: float = _declare(0.02, "the knot fits start this far off the prediction")
     knot_readings: int = _declare(3, "a knot is looked for in the window's last readings", 1)
     # ... on a noisy detector: a knot shows through the noise readings later, often after the
-    # last three, and a test that cannot place it there takes a wrong stage or side (lab,
-    # extreme, tuning seeds 8101-8120 x 5: 0.941 with 3, 0.962 with 5; docs/tracker.md). A clean
-    # detector keeps 3: the node's 4 ms cuts its knot test short, and 5 is 60 % more hypotheses.
+    # last three, and a test that cannot place it there takes a wrong stage or side
+    # (docs/tracker.md). A clean detector keeps 3: 5 is 60 % more hypotheses, which a real-time
+    # budget would cut short.
     noisy_knot_readings: int = _declare(5, "... on a noisy detector", 1)
     knot_iterations: int = _declare(
         6, "LM iterations of the knot hypotheses per knot test", 1, 100, node=True
@@ -283,12 +276,11 @@ class TrackerParams:
         node=True,
         node_default=4.0,
     )
-    # On a noisy detector a knot test needs ~50 ms here (51 hypotheses x 12 iterations), and
-    # the budget cut every one short over DDS (lab, hard: 97.55 % of readings >= 0.95 against a
-    # goal of 99 %). Spread, the test runs on over the next readings within each one's budget
-    # (its window and hypotheses kept), and a winner is tried again on the window of the reading
-    # it ends at, against no knot, before it is taken (docs/tracker.md, "A knot test spread
-    # over readings").
+    # On a noisy detector a knot test (51 hypotheses x 12 iterations at N = 5) can need more
+    # than one reading's budget, and a test cut short is left inconclusive. Spread, the test
+    # runs on over the next readings within each one's budget (its window and hypotheses kept),
+    # and a winner is tried again on the window of the reading it ends at, against no knot,
+    # before it is taken (docs/tracker.md, "A knot test spread over readings").
     slice_knot_test: bool = _declare(
         True,
         "true: on a noisy detector, a knot test its budget would cut short runs on over the "
@@ -299,16 +291,16 @@ class TrackerParams:
         2.0, "a path step this far off the drift (walk stds) asks for the knot test"
     )
     # ... on a noisy detector, where a knot shows late through the noise (kept at 2.0 on a
-    # clean one: each test is compute the node's 4 ms budget cuts short)
+    # clean one: each test is compute a real-time budget may cut short)
     noisy_knot_walk_sigmas: float = _declare(1.5, "... on a noisy detector")
     knot_penalty: float = _declare(4.0, "a knot hypothesis wins if its cost + this is lowest")
     # ... on a noisy detector (noise std >= noisy_threshold) the knot test fires on the noise
-    # far more often, and a hypothesis must win by this much (measured in docs/tracker.md)
+    # far more often, and a hypothesis must win by this much (docs/tracker.md)
     noisy_knot_penalty: float = _declare(8.0, "... on a noisy detector", 0.0)
     # Answer first, test for knots after: the command after a suspicious reading aims by the
     # plain fit and the knot test runs once it is out (think()), its outcome acting from the
-    # next command. In real time a knot test (5-15 ms) does not fit before a 100 Hz rig's next
-    # step: done first, the command came a step late, exactly after the knots (docs/tracker.md).
+    # next command. In real time a knot test may not fit before a 100 Hz rig's next step: done
+    # first, the command would come a step late, exactly after the knots (docs/tracker.md).
     defer_knot_test: bool = _declare(
         True,
         "true: answer a reading first and test it for a knot of the drift after",
@@ -320,8 +312,8 @@ class TrackerParams:
     # iterations) may be spread over readings, this many units per reading (0: all in the
     # reading that starts it; the commands keep their known excursions meanwhile). Spread, it
     # fits a window that is readings old and carries the estimate forward by the fitted drift,
-    # which failed in hard mode (seed 9803: 3-8 units per reading lost two of three episodes;
-    # docs/tracker.md, "One tracker for the node and evaluate").
+    # which loses episodes in hard mode (docs/tracker.md, "One tracker for the node and
+    # evaluate").
     search_units: int = _declare(
         0, "units of the global search per reading (0: all in one reading)", 0, 10000, node=True
     )
@@ -344,16 +336,15 @@ class TrackerParams:
     )
     # Readings without lock after which the detector's gain and offset go back to nominal: a fit
     # to a wrong estimate, or to readings that did not belong together (a starved machine), must
-    # not keep the tracker from ever locking again (seen: gain 0.56 on a true 1.0).
+    # not keep the tracker from ever locking again.
     calibration_reset_after: int = _declare(
         500, "readings without lock before the detector calibration goes back to nominal", 1
     )
     # A "lock" with more than half of its last false_lock_readings readings below
     # false_lock_power is no lock: the estimate is dropped, the detector calibration goes back to
-    # nominal and the tracker acquires again (0: never). Seen over DDS in extreme mode: a wrong
-    # estimate that the detector gain's fit followed to its bound (gain 20 on a true 1.0),
-    # "locked" at P_N 0.02 for 20,000 readings; on the simulated rig under load, a wrong lock
-    # whose knots jumped it about, 64 % of its readings below 0.5 but never 50 in a row.
+    # nominal and the tracker acquires again (0: never): a wrong estimate that the detector
+    # gain's fit follows can otherwise stay "locked" at a low power for good. More than half,
+    # not all in a row: a wrong lock whose knots jump it about reads high now and then.
     false_lock_power: float = _declare(
         0.5, "a lock whose readings are mostly below this is dropped", 0.0, 1.0
     )
@@ -375,9 +366,8 @@ class TrackerParams:
         node=True,
     )
     # ... on a detector told noisy (told_noisy_threshold: the rig's digitizer, source and
-    # detector): its period fits wander, and the wavelength with them (lab preset, hard, one
-    # run of 6000 steps: 86 % of readings >= 0.95 with moves every 10 readings, 96 % without;
-    # docs/tracker.md, "Noisy from 0.0015")
+    # detector): its period fits wander, and the wavelength with them (docs/tracker.md, "Noisy
+    # from 0.0015")
     noisy_hop_every: int = _declare(
         0,
         "readings between whole-cycle moves on a detector told noisy (0: none)",
@@ -386,7 +376,7 @@ class TrackerParams:
         node=True,
     )
     hop_cycles: int = _declare(2, "periods of a whole-cycle move", 1, 10)
-    # A latency the tracker was not told, or a wrong one (issue 30): once three quarters of the
+    # A latency the tracker was not told, or a wrong one: once three quarters of the
     # last latency_check_after readings are below latency_check_below, the last readings are
     # re-paired with the commands under each latency up to latency_check_longest and the one
     # they fit is taken (.latency_check).

@@ -1,11 +1,11 @@
-"""Per-entry weights of a reading (issue 30): the source's pulse-to-pulse noise moves the
+"""Per-entry weights of a reading: the source's pulse-to-pulse noise moves the
 stacked pulse's energy and the power, not the other slots.
 
 A reading is 2^N - 1 slot energies and the power. Near a lock the light is in the stacked slot,
 and a pulse energy noise of rms s moves that slot's energy by about s / sqrt(2^N) and the power
 by twice that, while the other slots, dark by interference, hardly move. Weighing every entry
-alike, the tracker had to treat the whole reading as noisy (a longer window, a slower drift
-prior) and lost ~1 % of P_N/P_max at s = 1 %. Weighing the two noisy entries down by their
+alike, the tracker would have to treat the whole reading as noisy (a longer window, a slower
+drift prior), which costs power. Weighing the two noisy entries down by their
 extra variance keeps the dark slots' information at its own noise.
 """
 

@@ -38,7 +38,9 @@ def fit_times(ctl, repeats: int) -> tuple[float, float]:
     """Median ms of one tracking fit and of one knot test on the tracker's present window."""
     u, y, age = ctl._window()
     x, drift, p = ctl.estimate + ctl.drift, ctl.drift, ctl.params
-    state = (ctl._path, ctl._objective, ctl._ratio, ctl.knots, ctl._knot_tick)
+    lock, knot = ctl.lock, ctl.knot
+    state = (lock.path, lock.objective, lock.ratio, lock.gain_step, lock.level_step)
+    counts = (knot.taken, knot.tick, knot.cut_short)
 
     def timed(call) -> float:
         out = []
@@ -50,7 +52,8 @@ def fit_times(ctl, repeats: int) -> tuple[float, float]:
 
     track = timed(lambda: ctl._fit_path(x, drift, u, y, age, p.track_iterations))
     knot = timed(lambda: ctl._knot_fit(x, x, drift, 1.0, u, y, age))
-    ctl._path, ctl._objective, ctl._ratio, ctl.knots, ctl._knot_tick = state
+    lock.path, lock.objective, lock.ratio, lock.gain_step, lock.level_step = state
+    knot.taken, knot.tick, knot.cut_short = counts
     return track, knot
 
 

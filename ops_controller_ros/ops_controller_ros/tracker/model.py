@@ -1,0 +1,132 @@
+"""The rig as the tracker models it: the stacker and optical period it fits with (replaced when the
+calibration moves the optics), the per-entry weights of a reading, the set-point range, the delay
+lines' lag and the random walk the path fits assume.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from . import fit
+from .params import TrackerParams
+from .weights import WeightedStacker, source_noise_weights
+
+
+def told_noise(params: TrackerParams, model) -> TrackerParams:
+    """The parameters with the detector noise the rig's model implies (its detector noise and
+    digitizer, :func:`ops_sim_ros.rig.reading_noise_std`) when that is more than assumed."""
+    from ops_sim_ros.rig import reading_noise_std
+
+    noise = 0.0
+    if hasattr(model, "trace_adc_bits"):  # the source's noise is weighed per entry (.weights)
+        noise = reading_noise_std(replace(model, pulse_amplitude_noise=0.0))
+    return replace(params, detector_noise=noise) if noise > params.detector_noise else params
+
+
+class RigModel:
+    """The nominal ``config`` (an OpsConfig) as the fits see it. ``setpoint_range_fs``: (low (N,),
+    high (N,)) the set-points each line can take (default: the model's +- actuator range);
+    ``reach_fs``: how far the slowest line moves in one reading (None: any distance)."""
+
+    def __init__(self, config, params: TrackerParams, setpoint_range_fs=None, reach_fs=None):
+        from ops_sim_ros.physics import stacker_from_config
+        from ops_sim_ros.rig import lag_gain
+
+        self.config = config
+        self.stage = int(config.stage)
+        self.stacker = stacker_from_config(config)
+        source_noise = float(getattr(config, "pulse_amplitude_noise", 0.0))
+        floor = max(params.detector_noise, params.fit_noise_floor)
+        self.weights = source_noise_weights(self.stage, source_noise, floor)
+        if params.power_weight < 1.0:
+            if self.weights is None:
+                self.weights = np.ones(self.stacker.num_slots + 1)
+            self.weights[-1] *= params.power_weight
+        self._weighted = None  # fit_stacker's, for the stacker now
+        self.period_fs = config.optical_period_fs
+        self.range_cycles = config.actuator_range_cycles
+        if setpoint_range_fs is None:
+            reach = self.range_cycles * self.period_fs
+            setpoint_range_fs = (np.full(self.stage, -reach), np.full(self.stage, reach))
+        self.range_fs = tuple(
+            np.asarray(r, dtype=np.float64).reshape(-1) for r in setpoint_range_fs
+        )
+        self.reach_fs = reach_fs
+        # A command acts this many steps late: a reading is matched to the command in effect
+        # then, and a command aims that far ahead.
+        self.latency = int(getattr(config, "latency_steps", 0))
+        # ... and the delay lines follow it at first order: a reading is matched to where they are
+        lag = float(getattr(config, "actuator_lag_steps", 0.0))
+        self.lag_gain = lag_gain(lag) if lag > 0.0 else None
+        w = params.walk_cycles
+        # the path fits' random walk per step: by default six times the model's jitter, so that
+        # a rig noisier than nominal is still followed
+        self.walk_sigma = max(6.0 * config.jitter_sigma_cycles, 1e-4) if w is None else w
+        # A source told noisy moves the stacked slot, which the fits lean on: it counts as a
+        # noisy detector, as does a detector noise told of at least told_noisy_threshold.
+        source = source_noise > 0.0
+        self.told_noisy = source or params.detector_noise >= params.told_noisy_threshold
+
+    @property
+    def fit_stacker(self):
+        """The model as the fits see it: readings weighed per entry (.weights); built once per
+        stacker (the calibration replaces ``stacker`` when it adopts new optics)."""
+        if self.weights is None:
+            return self.stacker
+        cached = self._weighted
+        if cached is None or cached.inner is not self.stacker:
+            cached = self._weighted = WeightedStacker(self.stacker, self.weights)
+        return cached
+
+    def weighed(self, y):
+        """Readings scaled as :attr:`fit_stacker` scales its predictions."""
+        return y if self.weights is None else y * self.weights
+
+    def adopt(self, calibration) -> float:
+        """Take the calibration's optics; returns the old period over the new (the same fs are
+        this many new cycles per old one)."""
+        old_period = self.period_fs
+        self.stacker = calibration.stacker()
+        self.period_fs = calibration.period_fs
+        return old_period / self.period_fs
+
+    def reading(self, power, pulse_energies) -> np.ndarray:
+        """A reading as the fits take it: slot energies and power (S + 1,), checked."""
+        if pulse_energies is None:
+            raise ValueError("the tracker needs the detected pulse energies, not only the power")
+        y = np.append(np.asarray(pulse_energies, dtype=np.float64).ravel(), float(power))
+        if y.size != self.stacker.num_slots + 1 or not np.all(np.isfinite(y)):
+            raise ValueError(
+                f"expected {self.stacker.num_slots} finite pulse energies and a finite power"
+            )
+        return y
+
+    def reachable(self, u: np.ndarray, position: np.ndarray) -> np.ndarray:
+        """A command (cycles) that brings lines lagging at ``position`` to ``u`` in a step,
+        within their range."""
+        if self.lag_gain is not None:
+            u = position + (u - position) / self.lag_gain
+        return np.clip(u, self.range_fs[0] / self.period_fs, self.range_fs[1] / self.period_fs)
+
+    def cycles(self, fs) -> np.ndarray:
+        """Set-points in cycles of the model."""
+        return np.asarray(fs, dtype=np.float64).reshape(self.stage) / self.period_fs
+
+    def predict(self, x, u, age, drift) -> np.ndarray:
+        """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles, unweighed."""
+        return fit.predict(self.stacker, self.period_fs, x, u, age, drift)
+
+    def cost(self, x, u, y, age, drift) -> np.ndarray:
+        """Mean squared weighed residual (M,) of the readings for candidates x (M, N)."""
+        return fit.cost(self.fit_stacker, self.period_fs, x, u, self.weighed(y), age, drift)
+
+    def refine(self, x, u, y, age, drift, iterations: int):
+        """:func:`.fit.refine` on the model now (a generator)."""
+        y = self.weighed(y)
+        return fit.refine(self.fit_stacker, self.period_fs, x, u, y, age, drift, iterations)
+
+    def slot_residuals(self, u, path, y) -> np.ndarray:
+        """The slot energies predicted at the path (K, N) minus those read (K, S)."""
+        return self.stacker.evaluate((u + path) * self.period_fs).slot_energies - y[:, :-1]

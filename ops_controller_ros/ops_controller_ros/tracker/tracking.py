@@ -1,0 +1,179 @@
+"""The lock: the estimate of the hidden delay errors and their drift, the last path fit of the
+window, and the misses that lead to a local re-lock; and the priors the path fits take.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .fit import PathFits, wrap
+from .params import TrackerParams
+
+#: No knot test on a window with readings further apart than this many steps (a rig's outage): a
+#: walk over the gap explains anything, and a knot cannot be placed in it.
+KNOT_MAX_GAP = 10
+
+
+@dataclass
+class Lock:
+    """The estimate of one run (from a reset), in cycles of the model."""
+
+    stage: int
+    # hidden delay errors now (None: not acquired), followed continuously from the acquisition's
+    # estimate (which is within half a period), and their drift per step
+    estimate: np.ndarray | None = None
+    drift: np.ndarray = None
+    residual: float = float("nan")  # mean squared residual of the last fit
+    path: np.ndarray = None  # the last path fit: the errors at each reading of its window
+    objective: float = float("nan")  # ... its whole normalized cost
+    ratio: float = 0.0  # ... the period error it fitted (over a whole-cycle move)
+    gain_step: float = 0.0  # ... the detector's relative gain it fitted (lock_gain_walk)
+    level_step: float = 0.0  # ... and the offset (lock_offset_walk)
+    bad_fits: int = 0  # fits in a row whose readings left the model
+    recovering: list | None = None  # readings since then, while re-locking
+    lock_tick: int = 0  # the reading an acquisition locked on
+
+    def __post_init__(self):
+        if self.drift is None:
+            self.drift = np.zeros(self.stage)
+        if self.path is None:
+            self.path = np.zeros((0, self.stage))
+
+    @property
+    def locked(self) -> bool:
+        return self.estimate is not None
+
+    def take(self, fits: PathFits, i: int = 0):
+        """Keep start ``i`` of ``fits`` as the last path fit; (x, drift, mean squared residual)."""
+        self.path, self.objective, self.ratio = fits.path[i], fits.objective[i], fits.ratio[i]
+        self.gain_step, self.level_step = float(fits.gain[i]), float(fits.level[i])
+        return fits.x[i], fits.drift[i], float(fits.data_cost[i])
+
+    def fit_state(self) -> tuple:
+        """(path, objective, ratio, (gain step, level step)) of the last path fit."""
+        return self.path, self.objective, self.ratio, (self.gain_step, self.level_step)
+
+    def start(self, x: np.ndarray, tick: int, drift: np.ndarray | None = None) -> None:
+        """Track from an acquired estimate x (wrapped to one period) and drift (default: none)."""
+        self.estimate = wrap(x)
+        self.drift = np.zeros(self.stage) if drift is None else drift
+        self.lock_tick = tick
+
+    def lose(self) -> None:
+        """No estimate any more (an acquisition follows)."""
+        self.estimate = None
+        self.recovering = None
+
+    def predicted(self, gap: int) -> np.ndarray:
+        """The errors ``gap`` steps on, by the drift."""
+        return self.estimate + gap * self.drift
+
+    def rescale(self, ratio: float, latest_u: np.ndarray) -> None:
+        """The estimate and drift in new cycles, ``ratio`` of them per old one (the latest
+        reading's set-points ``latest_u``, in old cycles, keep their phase)."""
+        self.estimate = self.estimate + latest_u - latest_u * ratio  # same phase
+        self.drift = self.drift * ratio
+
+
+class Guard:
+    """Locks that are none, of one run (from a reset): a lock whose readings are mostly low
+    (``false_lock_power``) is dropped, whatever the model and its calibration say (a stacker at
+    its optimum reads high); and a tracker long without a lock sends the detector's calibration
+    back to nominal (a fit to a wrong estimate, or to readings that did not belong together,
+    must not keep it from ever locking again)."""
+
+    def __init__(self, p: TrackerParams) -> None:
+        # of the readings while locked (not recovering), the last false_lock_readings: was each
+        # below false_lock_power?
+        self.low: deque = deque(maxlen=max(p.false_lock_readings, 1))
+        self.false_locks = 0  # locks dropped for that
+        self.unlocked = 0  # readings since the tracker last held a lock
+        self.calibration_resets = 0
+
+    def false_lock(self, p: TrackerParams, lock: Lock, power: float) -> bool:
+        """Whether to drop the lock after a reading of ``power``: more than half of its last
+        ``false_lock_readings`` readings low. Mostly, not all: a wrong lock whose knots and fits
+        jump it about reads high now and then."""
+        if not p.false_lock_readings or not lock.locked:
+            self.low.clear()
+            return False
+        if lock.recovering is not None:
+            return False  # its own search; neither a good nor a bad reading of the lock
+        self.low.append(power < p.false_lock_power)
+        if len(self.low) < self.low.maxlen or 2 * sum(self.low) <= self.low.maxlen:
+            return False
+        self.low.clear()
+        self.false_locks += 1
+        return True
+
+    def unlocked_too_long(self, p: TrackerParams, locked: bool, calibration) -> None:
+        """Count a reading; after ``calibration_reset_after`` in a row without a lock, the
+        detector's calibration goes back to nominal."""
+        self.unlocked = 0 if locked else self.unlocked + 1
+        if self.unlocked >= p.calibration_reset_after:
+            self.unlocked = 0
+            if calibration.reset_detector():
+                self.calibration_resets += 1
+
+
+def bounded(p: TrackerParams, drift: np.ndarray) -> np.ndarray:
+    """A fitted drift as the tracker takes it: within +- ``max_drift_cycles``."""
+    limit = p.max_drift_cycles
+    return np.clip(drift, -limit, limit)
+
+
+def detector_settled(p: TrackerParams, calibration) -> bool:
+    """Whether a misfit may be a knot: not before the detector's gain and offset are first fitted
+    (``calibrate``), nor while that fit is an acquisition's only. Until then a lock's readings
+    misfit by the detector's error, and a knot test would explain that as a knot and put the
+    drift wrong. An acquisition's fit of the detector is provisional: fitted to its low readings,
+    where a delay error moves the slot energies as much as the gain does, it can be percents off;
+    the first locked reading fits the detector again."""
+    return not p.calibrate or (calibration.detector_fitted and not calibration.detector_provisional)
+
+
+def drift_prior(p: TrackerParams, noisy: bool, since_knot: int, knot_cut_short: bool) -> float:
+    """How far one window may move the drift estimate (std, cycles per step): looser on a clean
+    detector, stiff on a noisy one; there looser again within ``quiet_after`` readings of a knot
+    taken, and stiffer still while no knot was taken for as long and the knot tests run to their
+    end (a quiet drift is only known where a knot would have been seen)."""
+    if not noisy:
+        return p.drift_prior_cycles
+    if since_knot < p.quiet_after and p.knotted_drift_prior_cycles:
+        return p.knotted_drift_prior_cycles  # the drift's slope changes: follow it
+    quiet = since_knot >= p.quiet_after and not knot_cut_short
+    if quiet and p.quiet_drift_prior_cycles:
+        return p.quiet_drift_prior_cycles
+    return p.noisy_drift_prior_cycles
+
+
+def gain_prior(p: TrackerParams, since_lock: int, window: int) -> float:
+    """The prior std of the gain a path fit fits: ``lock_gain_walk`` within a window of an
+    acquisition's lock, where the power does not pin the slot energies' level (``power_weight``
+    0) and the detector is calibrated; else 0 (none fitted)."""
+    if not p.calibrate or p.power_weight > 0.0:
+        return 0.0
+    return p.lock_gain_walk if since_lock <= window else 0.0
+
+
+def level_prior(p: TrackerParams, gain: float) -> float:
+    """The prior std of the offset a path fit fits: ``lock_offset_walk`` where the gain is
+    fitted (``gain`` > 0); else 0 (none fitted)."""
+    return p.lock_offset_walk if gain > 0.0 else 0.0
+
+
+def walk_jump(path: np.ndarray, drift: np.ndarray, gap: int, walk_sigma: float) -> float:
+    """The largest move of the fitted path over its last step, away from the drift, in units of
+    the walk's std (a knot shows here before the readings' residual grows)."""
+    if path.shape[0] < 2:
+        return 0.0
+    step = path[-1] - path[-2] - gap * drift
+    return float(np.max(np.abs(step))) / (walk_sigma * gap**0.5)
+
+
+def largest_gap(age: np.ndarray) -> float:
+    """The most steps between two consecutive readings of a window."""
+    return float(np.max(-np.diff(age), initial=0.0))
