@@ -1,0 +1,80 @@
+"""ops-bench soak on a few simulated seconds: a run stopped mid-way resumes from its checkpoint to
+the very figures of a run never stopped; other settings are refused; the page and figure come."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from ops_experiments.timed_loop import CappedLoop
+
+from ops_bench import soak
+
+# The tracker at 10 Hz on the lab rig (no vibration, so it locks at once), its compute fixed so
+# that two runs take the same steps; 12 s in blocks of 2 s, a checkpoint after each block.
+ARGS = ["--rate", "10", "--vibration", "none", "--compute-ms", "1", "--block-s", "2",
+        "--checkpoint-every", "2", "--seed", "11", "--no-progress"]  # fmt: skip
+HOURS = str(12 / 3600)
+
+
+def run(tmp_path, name, *extra):
+    out = tmp_path / name
+    argv = [*ARGS, "--hours", HOURS, "--out", str(out), "--page", str(out / "page"),
+            "--figure", str(out / "soak.png"), *extra]  # fmt: skip
+    return soak.main(argv), out
+
+
+def figures(out):
+    result = json.loads((out / "summary.json").read_text())
+    for key in ("wall_s", "commands", "compute_ms_median", "compute_ms_p99"):
+        result.pop(key)  # the time it took: measured, not the run's figures
+    state = soak.load_state(out / "state.pkl")
+    return result, state["blocks"]
+
+
+def test_a_stopped_soak_resumes_to_the_same_result(tmp_path, monkeypatch):
+    code, whole = run(tmp_path, "whole")
+    assert code == 0
+    calls = {"n": 0}
+    plain = CappedLoop.run
+
+    def interrupted(self, steps):
+        calls["n"] += 1
+        if calls["n"] == 4:  # killed in the fourth block, after three checkpoints
+            raise KeyboardInterrupt
+        return plain(self, steps)
+
+    monkeypatch.setattr(CappedLoop, "run", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path, "stopped")
+    monkeypatch.setattr(CappedLoop, "run", plain)
+    assert soak.load_state(tmp_path / "stopped" / "state.pkl")["loop"].step == 60
+    code, stopped = run(tmp_path, "stopped")
+    assert code == 0
+    want, want_blocks = figures(whole)
+    got, got_blocks = figures(stopped)
+    assert got == want
+    assert got_blocks == want_blocks and len(got_blocks["p_mean"]) == 6
+    assert want["steps"] == 120 and want["first_lock_step"] is not None
+
+
+def test_the_soak_writes_its_summary_page_and_figure(tmp_path):
+    code, out = run(tmp_path, "docs")
+    assert code == 0
+    result = json.loads((out / "summary.json").read_text())
+    assert set(result["goals"]) == {
+        "power_rms_pct <= 1.5",
+        "readings >= 0.95: >= 99.9 %",
+        "no lock lost",
+    }
+    page = (out / "page" / "index.md").read_text()
+    assert "ops-bench soak" in page and "| locks lost" in page
+    assert (out / "soak.png").stat().st_size > 0
+    assert len((out / "page" / "blocks.csv").read_text().splitlines()) == 1 + 6
+
+
+def test_other_settings_are_refused_and_fresh_starts_again(tmp_path):
+    assert run(tmp_path, "a")[0] == 0
+    assert run(tmp_path, "a", "--seed", "12")[0] == 2
+    assert run(tmp_path, "a", "--seed", "12", "--fresh")[0] == 0
+    assert soak.load_state(tmp_path / "a" / "state.pkl")["settings"]["seed"] == 12
