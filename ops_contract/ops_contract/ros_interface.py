@@ -12,6 +12,7 @@ message can stop a node.
 from __future__ import annotations
 
 import array
+import functools
 import math
 import signal
 import sys
@@ -78,17 +79,25 @@ MAX_READING = 1.0e3
 MAX_DELAY_FS = 1.0e6
 
 
+@functools.lru_cache(maxsize=64)
+def _layout_dims(shape: tuple[int, ...], labels: tuple[str, ...]) -> tuple:
+    """The dimensions of a row-major layout (made once per shape: the simulator sends three
+    arrays a step, and building them costs more than the rest of the message)."""
+    strides = np.cumprod(shape[::-1])[::-1]
+    return tuple(
+        MultiArrayDimension(label=label, size=int(size), stride=int(stride))
+        for label, size, stride in zip(labels, shape, strides, strict=True)
+    )
+
+
 def float_array_msg(values, labels: Sequence[str] = ("stage",)) -> Float32MultiArray:
     """A Float32MultiArray with its layout filled (one dimension per label, row-major)."""
     arr = np.asarray(values, dtype=np.float32)
     if arr.ndim != len(labels):
         raise ValueError(f"{arr.ndim}-D values need {arr.ndim} labels, got {list(labels)}")
     msg = Float32MultiArray()
-    strides = np.cumprod(arr.shape[::-1])[::-1]
-    msg.layout.dim = [
-        MultiArrayDimension(label=label, size=int(size), stride=int(stride))
-        for label, size, stride in zip(labels, arr.shape, strides, strict=True)
-    ]
+    # (the dimensions are shared between messages: no one changes a message once it is made)
+    msg.layout.dim = list(_layout_dims(arr.shape, tuple(labels)))
     data = array.array("f")
     data.frombytes(arr.tobytes())  # the fast path of the generated setter: no per-element checks
     msg.data = data
@@ -130,6 +139,8 @@ def check_layout(msg: Float32MultiArray) -> str | None:
 
 def _bounded(data, limit: float, what: str) -> np.ndarray:
     arr = np.asarray(data, dtype=np.float32)
+    if arr.size == 0 or np.abs(arr).max() <= limit:  # (NaN fails it: found below)
+        return arr
     bad = np.flatnonzero(~(np.abs(arr) <= limit))  # NaN, inf and too large
     if bad.size:
         i = int(bad[0])

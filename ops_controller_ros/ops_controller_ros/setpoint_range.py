@@ -115,6 +115,9 @@ class RangeKeeper:
         self.period_fs = float(period_fs)
         self.margin_cycles = float(margin_cycles)
         self.most_periods = periods_per_reading(reach_fs, self.period_fs)
+        # a command inside both margins needs no move and no clip (the common case, each step)
+        margin = self.margin_cycles * self.period_fs
+        self._clear_low, self._clear_high = self.low_fs + margin, self.high_fs - margin
         self.moves = 0  # set-points moved (one per stage and move)
         self.clipped = 0  # commands clipped into the range
         self.last_move = None  # the whole periods of the last move, per stage
@@ -153,6 +156,8 @@ class RangeKeeper:
         command = np.asarray(command_fs, dtype=np.float64).reshape(-1)
         if command.size != self.stage:
             raise ValueError(f"a command of {command.size} set-points; the range has {self.stage}")
+        if np.all(command >= self._clear_low) and np.all(command <= self._clear_high):
+            return command
         if getattr(ctrl, "move_setpoints", None) is None:
             return self.clip(command)
         periods = inward_periods(

@@ -99,7 +99,11 @@ PARAMS = [
         read_only=True,
     ),
     ParamSpec(
-        "rate_hz", 100.0, "free-running step rate (a rig's: 1 Hz to 1 kHz)", low=1.0, high=1000.0
+        "rate_hz",
+        100.0,
+        "free-running step rate (a rig's: 1 Hz to 1 kHz; beyond, the loop's headroom)",
+        low=1.0,
+        high=10000.0,
     ),
     ParamSpec("lockstep", False, "true: one step per command instead of a timer"),
     samples_per_slot_spec("trace samples per pulse slot"),

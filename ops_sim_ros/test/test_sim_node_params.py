@@ -78,7 +78,7 @@ def test_bad_physical_time_at_runtime_is_refused_and_the_config_kept(make_node):
         ("step_s", 1e-6, ["step_s", "[1e-05, 10.0]"]),
         ("step_s", float("nan"), ["step_s"]),
         ("vibration", "loud", ["vibration", "one of none, lab"]),
-        ("rate_hz", 2000.0, ["rate_hz", "1000.0"]),  # (rclpy says the range its own way)
+        ("rate_hz", 20000.0, ["rate_hz", "10000.0"]),  # (rclpy says the range its own way)
     ):
         result = node.set_parameters([Parameter(name, value=value)])[0]
         assert not result.successful, (name, value)
