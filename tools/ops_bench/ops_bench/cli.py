@@ -37,6 +37,9 @@ TOOLS: dict[str, Tool] = {
     "continuous-dds": Tool("continuous_dds", "a controller node's continuous run over DDS"),
     "continuous-table": Tool("continuous_table", "continuous-dds' table beside the in-process one"),
     "faults": Tool("faults", "controller nodes on a lossy, delayed, cut link between two hosts"),
+    "loop-rate": Tool(
+        "loop_rate", "sim + each controller over DDS: highest rate held, per executor"
+    ),
     "first-run": Tool(
         "first_run", "a first run over DDS (README commands): seconds to lock, SPGD or tracker"
     ),

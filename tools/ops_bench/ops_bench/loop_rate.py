@@ -1,0 +1,284 @@
+"""How fast a controller node keeps up with the free-running simulator over DDS, per executor.
+
+For each controller node (``spgd``, ``tracker``, ``policy -p model:=DIR``) and each executor
+(the nodes' ``executor`` parameter, ops_contract.executors) the simulator (N = 5) runs free at
+increasing ``rate_hz``, each rate with a fresh simulator and controller as real processes
+(``ros2 run``). After the controller says it closes the loop and ``--settle`` seconds more, for
+``--seconds``:
+
+- readings/s: ``ops/power`` messages received by a subscriber in this process;
+- missed: the share of the simulator's steps that took no new command, from its own count
+  (``step`` and ``steps_without_command`` in its /diagnostics, every 0.5 s here);
+- locked: the share of the readings >= 0.95 after the first one >= 0.95
+  (ops_experiments.continuous.lock_figures).
+
+A rate is held when readings/s reach 90 % of it (the simulator's own warning threshold), at most
+1 % of the steps missed their command, and, for the tracker and the policy, at least 99 % of
+the readings after the first lock are >= 0.95. A controller's sweep stops after ``--stop-after``
+rates in a row not held. Prints a table and, unless --no-write, rewrites the section of
+docs/benchmarks.md with the command and the machine's load (``uptime``) at start and end.
+
+Usage (after `source setup.bash`; on a shared machine at a lower priority, as measured):
+  nice -n 5 ops-bench loop-rate [--controllers spgd tracker policy] [--executors default events]
+      [--rates 100 200 300 500 700 1000 1500 2000] [--seconds 10] [--model models/n5_hard_switch]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from ops_bench.closed_loop import REPO, local_dds, power_node, start, stop_all
+from ops_bench.docs import publish
+
+SECTION = "## Loop rate over DDS, by executor"
+CONTROLLERS = ("spgd", "tracker", "policy")
+#: Each controller's simulator mode: SPGD-PID's goal is stated in medium, the others' in hard.
+MODES = {"spgd": "medium", "tracker": "hard", "policy": "hard"}
+RATES = (100, 200, 300, 500, 700, 1000, 1500, 2000)
+MAX_MISSED = 0.01
+MIN_LOCKED = 0.99
+MIN_RATE_SHARE = 0.9
+DIAGNOSTICS_PERIOD_S = 0.5
+
+
+def commands(args, controller: str, executor: str, rate: float) -> tuple[list[str], list[str]]:
+    """The simulator's and the controller's command lines."""
+    mode = args.mode or MODES[controller]
+    sim = ["ros2", "run", "ops_sim_ros", "sim", "--ros-args"]
+    for p in (
+        f"stage:={args.stage}",
+        f"mode:={mode}",
+        f"split:={args.split}",
+        f"seed:={args.seed}",
+        f"rate_hz:={rate:g}",
+        f"executor:={executor}",
+        f"diagnostics_period_s:={DIAGNOSTICS_PERIOD_S}",
+    ):
+        sim += ["-p", p]
+    ctl = ["ros2", "run", "ops_controller_ros", controller, "--ros-args"]
+    params = [f"seed:={args.seed}", f"executor:={executor}"]
+    if controller == "policy":
+        params.append(f"model:={Path(args.model).resolve()}")
+    for p in params:
+        ctl += ["-p", p]
+    return sim, ctl
+
+
+def sim_counts(msg) -> tuple[int, int] | None:
+    """(step, steps_without_command) of the simulator's /diagnostics message (None: another
+    node's)."""
+    for status in msg.status:
+        if status.name == "ops_sim":
+            values = {kv.key: kv.value for kv in status.values}
+            return int(values["step"]), int(values["steps_without_command"])
+    return None
+
+
+class Listener:
+    """ops/power readings and the simulator's diagnostics, on a node of this process spun by
+    the events executor (the cheapest for a subscriber at thousands of messages per second)."""
+
+    def __init__(self, node, power: list[float]):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from ops_contract.executors import make_executor
+        from ops_contract.ros_interface import TOPIC_DIAGNOSTICS
+
+        self.power = power
+        self.diagnostics: list[tuple[float, int, int]] = []  # (monotonic, step, without)
+        node.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, self._on_diagnostics, 10)
+        self.executor = make_executor("events", node.context)
+        self.executor.add_node(node)
+
+    def _on_diagnostics(self, msg) -> None:
+        counts = sim_counts(msg)
+        if counts is not None:
+            self.diagnostics.append((time.monotonic(), *counts))
+
+    def spin_until(self, condition, timeout: float) -> bool:
+        from rclpy.task import Future
+
+        deadline = time.monotonic() + timeout
+        while not condition():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            self.executor.spin_until_future_complete(Future(), min(0.1, left))
+        return True
+
+    def close(self) -> None:
+        self.executor.shutdown()
+
+
+def measure_point(args, controller: str, executor: str, rate: float, logdir: Path) -> dict:
+    """One rate: the figures of the window (see the module docstring)."""
+    from ops_experiments.continuous import lock_figures
+
+    sim_cmd, ctl_cmd = commands(args, controller, executor, rate)
+    tag = f"{controller}_{executor}_{rate:g}"
+    ctl_log = logdir / f"ctl_{tag}.log"
+    procs = [start(sim_cmd, logdir / f"sim_{tag}.log")]
+    with power_node(f"bench_loop_rate_{os.getpid()}") as (node, power):
+        listener = Listener(node, power)
+        try:
+            if not listener.spin_until(lambda: len(power) >= 20, 60):
+                raise RuntimeError(f"no ops/power from the simulator (see {logdir})")
+            procs.append(start(ctl_cmd, ctl_log))
+            if not listener.spin_until(lambda: "closing the loop" in ctl_log.read_text(), 180):
+                raise RuntimeError(f"the controller did not close the loop (see {ctl_log})")
+            listener.spin_until(lambda: False, args.settle)
+            power.clear()
+            first_diag = len(listener.diagnostics)
+            t0 = time.monotonic()
+            listener.spin_until(lambda: False, args.seconds)
+            elapsed = time.monotonic() - t0
+            readings = list(power)
+            diag = listener.diagnostics[first_diag:]
+        finally:
+            listener.close()
+            stop_all(procs)
+    if len(diag) < 2:
+        raise RuntimeError(f"fewer than 2 diagnostics of the simulator in the window ({logdir})")
+    (ta, step_a, miss_a), (tb, step_b, miss_b) = diag[0], diag[-1]
+    lock = lock_figures(readings) if readings else {"first_lock_step": None}
+    return {
+        "controller": controller,
+        "executor": executor,
+        "rate_hz": rate,
+        "readings_per_s": len(readings) / elapsed,
+        "sim_steps_per_s": (step_b - step_a) / (tb - ta),
+        "missed": (miss_b - miss_a) / max(step_b - step_a, 1),
+        "locked": lock.get("locked_fraction", 0.0) if lock["first_lock_step"] is not None else 0.0,
+        "first_lock_reading": lock["first_lock_step"],
+    }
+
+
+def held(point: dict) -> bool:
+    """The rate held: readings/s, missed commands and (but for SPGD) the lock."""
+    ok = point["readings_per_s"] >= MIN_RATE_SHARE * point["rate_hz"]
+    ok = ok and point["missed"] <= MAX_MISSED
+    return ok and (point["controller"] == "spgd" or point["locked"] >= MIN_LOCKED)
+
+
+def sweep(args, logdir: Path) -> list[dict]:
+    """Every controller and executor over the rates (see ``--stop-after``)."""
+    points = []
+    for controller in args.controllers:
+        for executor in args.executors:
+            misses = 0
+            for rate in args.rates:
+                point = measure_point(args, controller, executor, rate, logdir)
+                point["held"] = held(point)
+                points.append(point)
+                print(format_row(point), flush=True)
+                misses = 0 if point["held"] else misses + 1
+                if misses >= args.stop_after:
+                    break
+    return points
+
+
+def format_row(p: dict) -> str:
+    return (
+        f"| {p['controller']} | {p['executor']} | {p['rate_hz']:g} | "
+        f"{p['readings_per_s']:.0f} | {100 * p['missed']:.1f} % | {100 * p['locked']:.1f} % | "
+        f"{'yes' if p['held'] else 'no'} |"
+    )
+
+
+def highest_held(points: list[dict]) -> dict[tuple[str, str], float | None]:
+    best: dict[tuple[str, str], float | None] = {}
+    for p in points:
+        key = (p["controller"], p["executor"])
+        best.setdefault(key, None)
+        if p["held"] and (best[key] is None or p["rate_hz"] > best[key]):
+            best[key] = p["rate_hz"]
+    return best
+
+
+def uptime() -> str:
+    done = subprocess.run(["uptime"], capture_output=True, text=True, check=False)
+    return done.stdout.strip() or f"load average {os.getloadavg()}"
+
+
+def section(args, points: list[dict], load_start: str, load_end: str) -> list[str]:
+    cmd = "nice -n 5 ops-bench loop-rate " + " ".join(sys.argv[1:])
+    modes = ", ".join(f"{c} {args.mode or MODES[c]}" for c in args.controllers)
+    lines = [
+        SECTION,
+        "",
+        f"Command: `{cmd.strip()}`. Simulator N = {args.stage} free-running ({modes}; "
+        f"split {args.split}, seed {args.seed}) and the controller as processes, fresh for each "
+        f"rate; the window: {args.seconds:g} s from {args.settle:g} s after the controller "
+        "closes the loop. Readings/s: ops/power received by a subscriber; missed: the "
+        "simulator's steps that took no new command (its diagnostics' steps_without_command); "
+        "locked: readings >= 0.95 after the first one. Held: readings/s >= 90 % of rate_hz, "
+        "missed <= 1 %, and (tracker, policy) locked >= 99 %.",
+        "",
+        f"Machine: {os.cpu_count()} cores, shared with other work. `uptime` at the start: "
+        f"`{load_start}`; at the end: `{load_end}`.",
+        "",
+        "| controller | executor | highest rate_hz held |",
+        "|---|---|---|",
+    ]
+    for (controller, executor), rate in highest_held(points).items():
+        lines.append(f"| {controller} | {executor} | {'none' if rate is None else f'{rate:g}'} |")
+    lines += [
+        "",
+        "| controller | executor | rate_hz | readings/s | missed | locked | held |",
+        "|---|---|---|---|---|---|---|",
+        *(format_row(p) for p in points),
+        "",
+    ]
+    return lines
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
+    ap.add_argument("--executors", nargs="+", choices=("default", "events"), default=None)
+    ap.add_argument("--rates", nargs="+", type=float, default=list(RATES), help="rate_hz, Hz")
+    ap.add_argument("--seconds", type=float, default=10.0, help="window per rate")
+    ap.add_argument("--settle", type=float, default=2.0, help="s after the loop closes")
+    ap.add_argument("--stop-after", type=int, default=2, help="rates in a row not held")
+    ap.add_argument("--stage", type=int, default=5)
+    ap.add_argument("--mode", help=f"every controller's simulator mode (default: {MODES})")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--model", default=str(REPO / "models" / "n5_hard_switch"))
+    ap.add_argument("--out", help="also write the points to this JSON file")
+    ap.add_argument("--no-write", action="store_true", help="print only")
+    args = ap.parse_args(argv)
+    from ops_contract.executors import EXECUTORS
+
+    args.executors = args.executors or list(EXECUTORS)
+    if "policy" in args.controllers and not (Path(args.model) / "model.zip").is_file():
+        ap.error(f"--model: no model.zip in {args.model}")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    logdir = local_dds("bench_loop_rate")
+    import rclpy
+
+    load_start = uptime()
+    rclpy.init(args=[])  # not this tool's argv: NAME:=VALUE there is for the nodes
+    try:
+        points = sweep(args, logdir)
+    finally:
+        rclpy.try_shutdown()
+    load_end = uptime()
+    publish(SECTION, section(args, points, load_start, load_end), write=not args.no_write)
+    out = Path(args.out) if args.out else logdir / "results.json"
+    out.write_text(json.dumps({"args": vars(args), "points": points}, indent=2) + "\n")
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
