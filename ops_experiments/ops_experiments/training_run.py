@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ops_contract.config import RIG_KEYS, make_config
+from ops_contract.config import RIG_KEYS, TIME_KEYS, make_config
 from ops_contract.rig_randomization import RigRanges
 
 from . import cli_args
@@ -154,8 +154,9 @@ def _resolve_rig(args, out: Path, raw: list[str]) -> None:
 
 
 def _resume_rig(args, out: Path, raw: list[str]) -> None:
-    """A resumed run keeps its model's rig and the ranges it draws its rigs from, unless the
-    command line gives them anew."""
+    """A resumed run keeps its model's rig (with the physical time ``--rig`` gave it: time base,
+    step, vibration) and the ranges it draws its rigs from, unless the command line gives them
+    anew."""
     from ops_contract.policy_meta import PolicyLoadError, read_meta
 
     try:
@@ -164,7 +165,8 @@ def _resume_rig(args, out: Path, raw: list[str]) -> None:
         return  # resolve_run says what is wrong with the stored run
     if not args.rig_config and {"--realism", "--rig"}.isdisjoint(raw):
         config = stored.get("config") or {}
-        args.rig_config = {k: config[k] for k in ("realism", *RIG_KEYS) if k in config}
+        keys = ("realism", *RIG_KEYS, *TIME_KEYS)
+        args.rig_config = {k: config[k] for k in keys if k in config}
     if getattr(args, "rig_randomize", None) is None and stored.get("rig_randomize"):
         try:
             args.rig_ranges = RigRanges.from_value(stored["rig_randomize"])

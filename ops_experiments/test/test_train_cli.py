@@ -492,6 +492,27 @@ def test_the_rig_reaches_the_training_environments_and_a_resumed_run_keeps_it(tm
     assert "Traceback" not in bad.stderr
 
 
+def test_a_resumed_run_keeps_the_physical_time_its_rig_was_given(tmp_path):
+    """--rig time_base=seconds step_s=... vibration=lab: the training environments' time, saved
+    in the metadata, and kept by --resume without --rig."""
+    out = tmp_path / "seconds"
+    done = run(
+        "train", "--algo", "td3", "--stage", 2, "--mode", "easy", "--timesteps", 100,
+        "--rig", "time_base=seconds", "step_s=0.01", "vibration=lab", "--out", out,
+        "--no-progress",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    time_keys = {"time_base": "seconds", "step_s": 0.01, "vibration": "lab"}
+    config = read_metadata(out)["config"]
+    assert {k: config[k] for k in time_keys} == time_keys
+    again = run("train", "--resume", "--out", out, "--timesteps", 100, "--no-progress")
+    assert again.returncode == 0, again.stdout + again.stderr
+    meta = read_metadata(out)
+    assert {k: meta["config"][k] for k in time_keys} == time_keys
+    assert {k: meta["rig"][k] for k in time_keys} == time_keys
+    assert "step_s=0.01" in again.stdout and "vibration=lab" in again.stdout
+
+
 def test_a_rig_drawn_per_episode_is_saved_resumed_and_the_model_evaluates_on_lab(tmp_path):
     """--rig-randomize (training on the rig): each training env draws its rig at
     every reset; the ranges are printed and saved in the metadata (rig_randomize, beside the
