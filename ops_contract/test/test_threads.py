@@ -43,3 +43,26 @@ def test_a_thread_count_the_user_set_is_kept(name):
     limited, threads = probe("limit", **{name: "2"})
     assert limited is False
     assert threads == probe("none", **{name: "2"})[1]  # what BLAS made of it, untouched
+
+
+TORCH_PROBE = """
+import sys
+from ops_contract.threads import limit_torch_threads
+limited = limit_torch_threads()
+import torch
+print(limited, torch.get_num_threads())
+"""
+
+
+def test_torch_runs_on_one_thread_unless_the_user_set_a_count():
+    pytest.importorskip("torch")
+    clean = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
+    for env, expected in (({}, "True 1"), ({"OMP_NUM_THREADS": "2"}, "False 2")):
+        out = subprocess.run(
+            [sys.executable, "-c", TORCH_PROBE],
+            env={**clean, **env},
+            capture_output=True,
+            text=True,
+        )
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split() == expected.split()

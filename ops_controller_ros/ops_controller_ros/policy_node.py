@@ -43,6 +43,7 @@ from ops_contract.observation import OBSERVATION_SETS
 from ops_contract.policy_meta import DETECTORS, PolicyLoadError, check_asked
 from ops_contract.rig_params import RIG_PARAM_KEYS
 from ops_contract.ros_interface import NodeFatalError, ParameterError, run_node
+from ops_contract.threads import limit_torch_threads
 from rcl_interfaces.msg import SetParametersResult
 
 from .loop_node import EXECUTOR, ControllerLoopNode
@@ -150,6 +151,7 @@ class PolicyController:
 class PolicyNode(ControllerLoopNode):
     def __init__(self):
         super().__init__("ops_policy", PARAMS)
+        limit_torch_threads()  # (ops_contract.threads: a thread per core stalls on a busy CPU)
         self.values.update(declare_all(self, [MODEL], on_change=self._on_model_change))
         self._latency = self.nominal_model().latency_steps  # the told rig's (any stage)
         detector = self.values["detector"]
