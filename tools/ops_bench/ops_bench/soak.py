@@ -206,9 +206,23 @@ def run(args, state: dict[str, Any], path: Path) -> dict[str, Any]:
                 state["wall_s"] += time.monotonic() - t0
                 t0 = time.monotonic()
                 save_state(state, path)
+                if args.no_progress:  # a log line per checkpoint instead of the bar
+                    print(checkpoint_line(state), flush=True)
     finally:
         bar.close()
     return state
+
+
+def checkpoint_line(state: dict[str, Any]) -> str:
+    settings, loop = state["settings"], state["loop"]
+    fig = state["stats"].figures()
+    hours = loop.step / settings["rate_hz"] / 3600.0
+    rms, locked = fig["power_rms_pct"], fig["locked_fraction"]
+    return (
+        f"[soak] checkpoint at {hours:.3f} h ({loop.step:,} steps, {state['wall_s'] / 3600:.2f} h "
+        f"of wall time): P_N/P_max rms {'-' if rms is None else f'{rms:.2f} %'}, readings >= "
+        f"0.95 {'-' if locked is None else f'{100 * locked:.3f} %'}, locks lost {fig['losses']}"
+    )
 
 
 def summary(state: dict[str, Any]) -> dict[str, Any]:
