@@ -83,8 +83,9 @@ LOOP_PARAMS = [
 #: The parameters a running loop applies at once; the others are fixed after start.
 LIVE_PARAMS = ("rate_hz", "timeout_s")
 #: The default of every controller node's ``executor`` parameter (declared by run_node,
-#: ops_contract.executors)
-EXECUTOR = "default"
+#: ops_contract.executors): the events executor, with which each controller node missed fewer of
+#: the simulator's steps (``ops-bench loop-rate``, docs/benchmarks.md)
+EXECUTOR = "events"
 
 
 class ControllerLoopNode(Node):

@@ -162,8 +162,10 @@ PARAMS = [
     ),
 ]
 _SPECS = {p.name: p for p in PARAMS}
-#: The default of the node's ``executor`` parameter (run_node declares it, ops_contract.executors)
-EXECUTOR = "default"
+#: The default of the node's ``executor`` parameter (run_node declares it, ops_contract.executors):
+#: the events executor, whose steps cost less CPU and whose controllers miss fewer of them
+#: (``ops-bench loop-rate``, docs/benchmarks.md)
+EXECUTOR = "events"
 _WARN_PERIOD_S = 2.0
 #: Warn when the steps of the last RATE_WINDOW_S seconds ran below this share of rate_hz.
 RATE_WINDOW_S = 2.0
