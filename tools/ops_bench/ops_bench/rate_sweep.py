@@ -199,8 +199,6 @@ def pending_cells(args, done: set) -> list[tuple[dict[str, Any], str]]:
 
 
 def run_sweep(args) -> None:
-    from ops_experiments.timed_loop import load_model_stack
-
     path = args.out / "cells.jsonl"
     done = {cell_key(c) for c in read_cells(path)}
     todo = pending_cells(args, done)
@@ -212,16 +210,12 @@ def run_sweep(args) -> None:
     )
     if not todo:
         return
-    models: dict[str, Any] = {}
+    models = preload(args.controllers)
     version = code_version()
     bar = progress_bar(total, args.no_progress)
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         for spec, name in todo:
-            if name not in models:
-                models[name] = (
-                    None if spec["controller"] == name else load_model_stack(str(model_path(name)))
-                )
             bar.set_postfix_str(f"{spec['controller']} {spec['rate_hz']:g} Hz seed {spec['seed']}")
             cell = run_cell(spec, name, models[name], lambda n, *_: bar.update(n))
             cell["command"] = args.command
@@ -231,6 +225,23 @@ def run_sweep(args) -> None:
             bar.write(summary_line(cell))
     finally:
         bar.close()
+
+
+def preload(names: list[str]) -> dict[str, Any]:
+    """Every model read and loaded, and every controller's modules imported, before the first
+    cell: an hours-long sweep runs the code it started with, though files change meanwhile."""
+    import ops_controller_ros.controllers
+    import ops_controller_ros.spgd
+    import ops_controller_ros.tracker
+    from ops_experiments.timed_loop import CONTROLLER_NAMES, load_model_stack
+
+    models = {n: None for n in names if n in CONTROLLER_NAMES}
+    for name in names:
+        if name not in models:
+            import ops_controller_ros.policy_node  # noqa: F401
+
+            models[name] = load_model_stack(str(model_path(name)))
+    return models
 
 
 def code_version() -> str:
