@@ -200,6 +200,17 @@ def highest_held(points: list[dict]) -> dict[tuple[str, str], float | None]:
     return best
 
 
+def code_version() -> str:
+    """``git describe --always --dirty`` of the repository (what the nodes ran)."""
+    done = subprocess.run(
+        ["git", "-C", str(REPO), "describe", "--always", "--dirty"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    return done.stdout.strip() or "unknown"
+
+
 def uptime() -> str:
     done = subprocess.run(["uptime"], capture_output=True, text=True, check=False)
     return done.stdout.strip() or f"load average {os.getloadavg()}"
@@ -219,8 +230,10 @@ def section(args, points: list[dict], load_start: str, load_end: str) -> list[st
         "locked: readings >= 0.95 after the first one. Held: readings/s >= 90 % of rate_hz, "
         "missed <= 1 %, and (tracker, policy) locked >= 99 %.",
         "",
-        f"Machine: {os.cpu_count()} cores, shared with other work. `uptime` at the start: "
-        f"`{load_start}`; at the end: `{load_end}`.",
+        f"Machine: {os.cpu_count()} cores, shared with other work (a loop waits for a core "
+        "while the load exceeds them: on an idle machine the same command measures the code "
+        f"alone). `uptime` at the start: `{load_start}`; at the end: `{load_end}`. Code: "
+        f"`{code_version()}`.",
         "",
         "| controller | executor | highest rate_hz held |",
         "|---|---|---|",
