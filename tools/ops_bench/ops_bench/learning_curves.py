@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import shlex
 import sys
 from pathlib import Path
 
@@ -25,6 +26,7 @@ REPO = Path(__file__).resolve().parents[3]
 PAPER_TD3_STEPS = 300_000
 DEFAULT_SAC = ("n5_easy", "n5_medium", "n5_hard")
 COLORS = {"easy": "tab:green", "medium": "tab:orange", "hard": "tab:red", "extreme": "tab:purple"}
+LAB_COLOR = "tab:brown"  # a run on the lab rig (whatever its mode)
 
 
 def read_curve(folder: Path) -> list[dict]:
@@ -82,12 +84,13 @@ def draw(items: list[dict], path: Path, reach: float) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), sharey=True)
     for it in items:
         style = "-" if it["recipe"].startswith("dagger") else ":"
-        color = COLORS.get(it["mode"], "gray")
+        color = LAB_COLOR if it["rig"] else COLORS.get(it["mode"], "gray")
         xs_m = [r["minutes"] for r in it["curve"]]
         xs_s = [max(r["env_steps"], 1) for r in it["curve"]]
         ys = [r["mean"] for r in it["curve"]]
         for ax, xs in zip(axes, (xs_m, xs_s), strict=True):
             ax.plot(xs, ys, style, color=color, marker=".", ms=3, label=it["label"])
+    axes[0].set_xscale("log")
     axes[1].set_xscale("log")
     axes[1].axvline(PAPER_TD3_STEPS, color="k", lw=0.8, ls="--")
     axes[1].text(PAPER_TD3_STEPS * 1.05, 0.05, "paper's TD3\nbudget (300k)", fontsize=8)
@@ -95,7 +98,7 @@ def draw(items: list[dict], path: Path, reach: float) -> None:
         ax.axhline(reach, color="gray", lw=0.6, ls="--")
         ax.set_ylim(0, 1.01)
         ax.grid(alpha=0.3)
-    axes[0].set_xlabel("wall minutes (one core)")
+    axes[0].set_xlabel("wall minutes (one core, shared machine)")
     axes[1].set_xlabel("environment steps (every simulated step)")
     axes[0].set_ylabel("test final P_N / P_max (mean)")
     axes[1].legend(fontsize=7, loc="lower right")
@@ -159,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = table(items, args.reach)
     out = REPO / args.results
     out.mkdir(parents=True, exist_ok=True)
-    command = "ops-bench learning-curves " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = "ops-bench learning-curves " + shlex.join(sys.argv[1:] if argv is None else argv)
     (out / "table.md").write_text(
         f"Command: `{command.strip()}`\n\n" + "\n".join(lines) + "\n", encoding="utf-8"
     )
