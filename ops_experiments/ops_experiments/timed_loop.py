@@ -46,6 +46,8 @@ from ops_contract.config import LIMITS, make_config
 from .continuous import LOCK, LOSS
 
 CONTROLLER_NAMES = ("tracker", "spgd")
+#: Not a controller a rig can run: :class:`TrueErrorReference`, the floor of the others.
+REFERENCE = "oracle"
 
 
 def timed_config(
@@ -92,8 +94,46 @@ def phase_mrad(applied_fs, period_fs: float) -> np.ndarray:
 
 
 def label_of(name: str) -> str:
-    """A controller's name in tables: ``tracker``, ``spgd``, or a model folder's name."""
-    return name if name in CONTROLLER_NAMES else str(name).rstrip("/").split("/")[-1]
+    """A controller's name in tables: ``tracker``, ``spgd``, ``oracle`` or a model folder's."""
+    if name in CONTROLLER_NAMES or name == REFERENCE:
+        return name
+    return str(name).rstrip("/").split("/")[-1]
+
+
+class TrueErrorReference:
+    """A reference for every controller at a loop rate and latency, not one a rig can run: at
+    each reading it knows the lines' random walk and drift exactly (the commands in flight
+    counted, as :func:`ops_experiments.oracle.oracle_increments` counts them; the drift's slope
+    carried over the latency) and the vibration's value then, and commands the lines to where
+    cancels them when the command acts. The vibration then is predicted from its value at the
+    reading by the best linear factor for that lag, its autocorrelation over (latency + 1)
+    periods (from the preset's lines and floor; 0 where the lag decorrelates it, so a slow loop
+    does not chase it). What it leaves is roughly what the loop's rate and latency let the
+    vibration do (and the actuator's lag and hysteresis, which it ignores)."""
+
+    def __init__(self, sim) -> None:
+        self.sim = sim
+        self.stage = sim.stage
+        self._command = np.array(sim.setpoints_fs[0], dtype=np.float64)
+        vibration = sim.noise.vibration
+        self.rho = np.zeros(self.stage)
+        if vibration is not None:
+            lag_s = (sim.config.latency_steps + 1) * sim.config.step_s
+            power = vibration.amplitude**2
+            self.rho = np.cos(2.0 * np.pi * vibration.hz[0] * lag_s) @ power / power.sum()
+
+    def command(self) -> np.ndarray:
+        return self._command.copy()
+
+    def observe(self, power, pulse_energies=None, steps: int = 1, command_age=None) -> None:
+        sim, noise = self.sim, self.sim.noise
+        ahead = sim.setpoints_fs[0] + noise.slow_offset[0]
+        if noise.drift_enabled:
+            ahead += (sim.config.latency_steps + 1) * noise.slope[0]
+        if noise.vibration is not None:
+            ahead += self.rho * noise.vibration.at(noise.time_s)[0]
+        period = sim.config.optical_period_fs
+        self._command = sim.setpoints_fs[0] - (ahead - period * np.rint(ahead / period))
 
 
 def make_agent(name: str, config, seed: int, setpoints_fs, model=None) -> tuple[Any, int]:
@@ -334,6 +374,8 @@ def start_loop(name: str, config, seed: int, model=None, compute_ms=None, comput
 
     sim = BatchedSimulation(config, 1, seed=seed)
     result = sim.reset(seed=seed)
+    if name == REFERENCE:
+        return CappedLoop(sim, TrueErrorReference(sim), 0.0)
     ctl, wait = make_agent(name, config, seed, result.setpoints_fs[0], model)
     return CappedLoop(sim, ctl, compute_ms, wait, compute_scale)
 

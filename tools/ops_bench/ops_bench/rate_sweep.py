@@ -36,7 +36,7 @@ from typing import Any
 from ops_bench import REPO
 
 RATES = (10, 30, 100, 300, 1000)
-CONTROLLERS = ("tracker", "spgd", "models/n5_hard_lab")
+CONTROLLERS = ("tracker", "spgd", "models/n5_hard_lab", "oracle")
 SEEDS = tuple(range(7101, 7111))  # never used to tune anything
 QUICK_SEEDS, QUICK_SECONDS = SEEDS[:3], 10.0
 OUT = REPO / "docs" / "results" / "rate_sweep"
@@ -58,7 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         default=list(CONTROLLERS),
         metavar="NAME",
-        help="tracker, spgd or model directories (default: %(default)s)",
+        help="tracker, spgd, model directories, or oracle: the floor of any controller at "
+        "each rate and latency (it reads the true delay errors: ops_experiments.timed_loop."
+        "TrueErrorReference) (default: %(default)s)",
     )
     p.add_argument(
         "--rates",
@@ -233,9 +235,9 @@ def preload(names: list[str]) -> dict[str, Any]:
     import ops_controller_ros.controllers
     import ops_controller_ros.spgd
     import ops_controller_ros.tracker
-    from ops_experiments.timed_loop import CONTROLLER_NAMES, load_model_stack
+    from ops_experiments.timed_loop import CONTROLLER_NAMES, REFERENCE, load_model_stack
 
-    models = {n: None for n in names if n in CONTROLLER_NAMES}
+    models = {n: None for n in names if n in (*CONTROLLER_NAMES, REFERENCE)}
     for name in names:
         if name not in models:
             import ops_controller_ros.policy_node  # noqa: F401

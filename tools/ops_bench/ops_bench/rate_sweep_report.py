@@ -17,6 +17,8 @@ import numpy as np
 
 from .rate_sweep import GOAL_MRAD, GOAL_RMS_PCT, GROUP_KEYS
 
+REFERENCE = "oracle"  # ops_experiments.timed_loop.REFERENCE (not imported: no ROS needed here)
+
 
 def pooled(values) -> float | None:
     """The rms of per-run rms figures (runs of equal length); None for none."""
@@ -120,7 +122,13 @@ def advice(rows: list[dict[str, Any]]) -> list[str]:
     """Which controller to run at each rate: the lowest residual among those that locked on
     every seed; and the best of all."""
     lines = []
-    ok = [r for r in rows if r["never_locked"] == 0 and r["residual_mrad"] is not None]
+    ok = [
+        r
+        for r in rows
+        if r["never_locked"] == 0
+        and r["residual_mrad"] is not None
+        and r["controller"] != REFERENCE
+    ]
     for rate in sorted({r["rate_hz"] for r in rows}):
         here = [r for r in ok if r["rate_hz"] == rate]
         if not here:
@@ -137,6 +145,20 @@ def advice(rows: list[dict[str, Any]]) -> list[str]:
                 else ""
             )
             + f"): LBNL's goals {'met' if best['meets'] else 'not met'}."
+        )
+    floor = sorted(
+        (r for r in rows if r["controller"] == REFERENCE and r["residual_mrad"] is not None),
+        key=lambda r: r["rate_hz"],
+    )
+    if floor:
+        lines.append(
+            f"- **The reference** ({REFERENCE}: the true delay errors known at each reading, "
+            "not a controller a rig can run) leaves "
+            + ", ".join(
+                f"{r['residual_mrad']:.0f} mrad / {r['power_rms_pct']:.2f} % at {r['rate_hz']:g} Hz"
+                for r in floor
+            )
+            + ": what the rate and latency let the vibration do."
         )
     if ok:
         best = min(ok, key=lambda r: r["residual_mrad"])
@@ -169,11 +191,12 @@ def figure(rows: list[dict[str, Any]], path: Path, title: str) -> None:
             )
             if not mine:
                 continue
-            color = f"C{i}"
+            color, style = (f"C{i}", "-") if name != REFERENCE else ("0.5", "--")
             x = np.array([r["rate_hz"] for r in mine])
             y = np.array([r[key] for r in mine])
             err = np.array([[r[key] - r[low], r[high] - r[key]] for r in mine]).T
-            ax.errorbar(x, y, yerr=err, color=color, lw=1.2, capsize=3, label=name)
+            label = name if name != REFERENCE else f"{name} (true errors known: reference)"
+            ax.errorbar(x, y, yerr=err, color=color, ls=style, lw=1.2, capsize=3, label=label)
             capped = np.array([r["steps_per_command"] > 1 for r in mine])
             ax.plot(x[~capped], y[~capped], "o", color=color)
             ax.plot(x[capped], y[capped], "o", mfc="white", color=color)
@@ -228,7 +251,10 @@ unless fixed (`--compute-ms`). Figures are taken over every simulator step from 
 P_N/P_max >= 0.95 on: residual phase = 2 pi x (delay error to the nearest whole optical period)
 / optical period, rms per stage; P_N/P_max rms = standard deviation over mean; losses: runs
 below 0.8. LBNL's goals: <= 50 mrad rms per stage (the worst stage is compared) and <= 1.5 %
-rms in P_N/P_max.
+rms in P_N/P_max. `oracle` is a reference, not a controller a rig can run: it knows the lines'
+walk and drift at each reading and predicts their vibration from its value then
+(`TrueErrorReference` in ops_experiments/timed_loop.py), so what it leaves is roughly what the
+loop's rate and latency let the vibration do.
 """
 
 

@@ -175,3 +175,20 @@ def test_a_tiny_sweep_stores_resumes_and_reports(tmp_path, capsys):
 def test_bad_compute_figures_are_refused(tmp_path):
     assert rate_sweep.main(["--compute-ms", "spgd", "--out", str(tmp_path)]) == 2
     assert rate_sweep.main(["--compute-ms", "spgd=-1", "--out", str(tmp_path)]) == 2
+
+
+def test_the_reference_leaves_little_without_vibration_and_no_more_than_it():
+    from ops_experiments.timed_loop import run_for
+
+    quiet, shaken = (timed_config(100, vibration=v) for v in ("none", "lab"))
+    figures = {}
+    for name, config in (("quiet", quiet), ("shaken", shaken)):
+        loop = start_loop("oracle", config, seed=4)
+        stats = RunStats(5, config.optical_period_fs)
+        run_for(loop, 300, stats)
+        figures[name] = stats.figures()
+    # the walk of one 10 ms period is ~2 mrad; the rig's hysteresis and lag add a little
+    assert figures["quiet"]["residual_mrad"] < 20.0
+    assert figures["quiet"]["first_lock_step"] <= 3
+    # lab vibration is 121 mrad rms per line: a reference that knows it leaves no more
+    assert 20.0 < figures["shaken"]["residual_mrad"] < 125.0
