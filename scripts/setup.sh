@@ -76,8 +76,11 @@ if [ "$(cat "$deps_stamp" 2>/dev/null)" != "$deps_hash" ]; then
   run_logged "installing Python dependencies" "$LOG_DIR/pip.log" \
     "$VPY" -m pip install --disable-pip-version-check "${req_args[@]}"
   # The rosbag2/MCAP library of `ros2 bag`, evaluate --record and the Foxglove view (both modes).
+  # compat: a path entry, so that `import ops_bag` from the repository's root (where ops_bag/ is
+  # a folder, which Python would take for a namespace package) still finds the package.
   run_logged "installing ops_bag" "$LOG_DIR/ops_bag.log" \
-    "$VPY" -m pip install --disable-pip-version-check --no-deps -e ops_bag
+    "$VPY" -m pip install --disable-pip-version-check --no-deps \
+    --config-settings editable_mode=compat -e ops_bag
   # `ops-bench`: the benchmarks, figure and model tools, and the helpers the tests import.
   run_logged "installing tools/ops_bench" "$LOG_DIR/ops_bench.log" \
     "$VPY" -m pip install --disable-pip-version-check --no-deps -e tools/ops_bench

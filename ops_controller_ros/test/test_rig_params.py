@@ -100,8 +100,8 @@ def test_the_policy_node_counts_a_randomized_figure_as_trained_on():
             get_logger=lambda: SimpleNamespace(warning=said.append),
         )
         trained = make_config(stage=3, realism="lab").to_dict()
-        meta = {"config": trained, "rig_randomize": ranges}
-        PolicyNode._check_rig(node, SimpleNamespace(metadata=meta, stage=3))
+        meta = SimpleNamespace(config=trained, stage=3, entries={"rig_randomize": ranges})
+        PolicyNode._check_rig(node, SimpleNamespace(meta=meta))
         return said
 
     ranges = {"latency_steps": [0, 2], "trace_adc_bits": [6, 12]}
