@@ -16,7 +16,7 @@ def test_the_knot_counts_keep_the_progress_line_to_one_pair_of_parentheses():
     part early and the node's locked readings no longer matched."""
     ctrl = SimpleNamespace(knots=3, knot_tests_spread=2, knot_tests_cut=1)
     note = TrackerNode._knot_note(SimpleNamespace(ctrl=ctrl))
-    assert note == ", knots 3, knot tests spread 2 / cut 1"
+    assert note == ", since start: knots 3, knot tests spread 2 / cut 1"
     line = f"reading 74 (locked; model 1030.4 nm, 1000 fs{note}): P_N/P_max = 0.9961"
     assert re.search(LOCKED_LINE, line)
     quiet = SimpleNamespace(knots=0, knot_tests_spread=0, knot_tests_cut=0)
