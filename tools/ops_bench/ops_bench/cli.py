@@ -48,6 +48,9 @@ TOOLS: dict[str, Tool] = {
     "rig-tracker": Tool("rig_tracker", "simulated lab + rig + tracker over DDS, a long run"),
     "tracker": Tool("tracker", "the tracker's goals: episodes per mode, mismatch, compute"),
     "tracker-compute": Tool("tracker_compute", "the tracker's compute per reading (100 Hz budget)"),
+    "tracker-reference": Tool(
+        "tracker_reference", "record the tracker's runs on fixed cases; compare two records"
+    ),
     "training": Tool("training", "training speed and learning of hyper-parameter sets"),
     "two-hosts": Tool("two_hosts", "the closed loop with sim and SPGD on one host or two"),
     "spgd-baseline": Tool("spgd_baseline", "SPGD-PID's episodes: figure and parameter sweep"),
