@@ -39,7 +39,13 @@ from pathlib import Path
 from typing import Any
 
 #: The project's packages, shipped to every node with each task.
-PACKAGES = ("ops_gym_bridge", "ops_sim_ros", "ops_controller_ros")
+PACKAGES = (
+    "ops_contract",
+    "ops_sim_ros",
+    "ops_controller_ros",
+    "ops_gym_bridge",
+    "ops_experiments",
+)
 #: The third-party distributions a run imports; a node must have the driver's versions.
 WORKER_DISTRIBUTIONS = ("numpy", "gymnasium", "stable-baselines3", "sb3-contrib", "torch", "pyyaml")
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
