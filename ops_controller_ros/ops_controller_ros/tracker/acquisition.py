@@ -43,7 +43,9 @@ class Search:
     def step(self, p: TrackerParams, start: Callable[[], Generator]) -> Acquired | None:
         """Advance the search (``start()`` begins one) by this reading's share:
         ``search_units`` units of work (0: all of it), fewer if ``step_budget_ms`` (a real-time
-        cap, 0: none) is spent first; its outcome once it ends."""
+        cap, 0: none) is spent first; its outcome once it ends. (A search spread over readings
+        fits a window readings old and carries its estimate on by the drift it fitted, which
+        loses locks: by default it runs whole.)"""
         if self.job is None:
             self.job = start()
         units = p.search_units

@@ -5,6 +5,7 @@ count of readings and steps that the rest of the state is timed by.
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -105,15 +106,22 @@ def excursion(p: TrackerParams, n: int, tick: int) -> np.ndarray:
     """The tracking excursion's direction at ``tick`` (N,): ``one`` stage at a time, alternating
     in sign; ``all``: every stage at once, the signs of a row of a Hadamard matrix (the rows
     cycle, so every stage's sign is seen against every other's)."""
-    out = np.zeros(n)
     if p.hold_pattern == "one":
+        out = np.zeros(n)
         out[tick % n] = 1.0 if (tick // n) % 2 == 0 else -1.0
         return out
     size = 1 << max(n, 1).bit_length()  # a Hadamard order > n (Sylvester)
-    row = tick % size
+    return _hadamard_row(n, tick % size)
+
+
+@functools.lru_cache(maxsize=256)
+def _hadamard_row(n: int, row: int) -> np.ndarray:
+    """Row ``row`` of a Sylvester Hadamard matrix over columns 1..n, over sqrt(n) (read-only)."""
     cols = np.arange(1, n + 1)  # skip the all-ones column
     bits = np.array([bin(row & c).count("1") & 1 for c in cols])
-    return (1.0 - 2.0 * bits) / np.sqrt(n)
+    out = (1.0 - 2.0 * bits) / np.sqrt(n)
+    out.flags.writeable = False
+    return out
 
 
 def hold_dither(p: TrackerParams, noise_var: float, drift: np.ndarray) -> float:

@@ -92,10 +92,8 @@ class PhaseTracker:
         setpoint_range_fs=None,
         reach_fs=None,
     ):
-        """``model``: the nominal OpsConfig; ``setpoint_range_fs``: (low (N,), high (N,)) the
-        set-points each line can take (a rig's channel limits through its calibration; default:
-        the model's +- actuator range); ``reach_fs``: how far the slowest line moves in one
-        reading (None: any distance)."""
+        """``model``: the nominal OpsConfig; ``setpoint_range_fs``, ``reach_fs``: the lines'
+        range and speed (:class:`.model.RigModel`)."""
         self.model = model
         self.stage = int(model.stage)
         self.params = told_noise(params or TrackerParams(), model)
@@ -215,29 +213,31 @@ class PhaseTracker:
         revised command and is not used). ``spread`` False: the deferred test only (``observe``
         runs it first: a spread test moves on in the time after a command, not twice a
         reading)."""
-        lock, knot = self.lock, self.knot
-        deadline = None
+        lock, knot, p = self.lock, self.knot, self.params
+        deadline, rows = None, knots.budget_rows(p, self.rig.work_scale)  # (this reading's)
         aimed = (lock.estimate, lock.drift)  # what the command given aims by
         if knot.job is not None:
             job, knot.job = knot.job, None
             # the state the test starts from: as it was before the answer
             lock.drift, lock.path = job.drift_before, job.path
             lock.objective, lock.ratio = job.objective, job.ratio
-            deadline = knots.deadline(self.params)
+            deadline, noisy = knots.deadline(p), self._noisy()
             predicted, x, drift, cost, u, y, age, ratio = job.fit
-            if knots.spreads(self.params, deadline, self._noisy()):
+            over = knots.over_budget(p, self.stage, len(u), noisy, self.rig.work_scale)
+            if knots.spreads(p, deadline, noisy, over):
                 if knot.run is None:  # (one under way: this reading goes untested)
                     run = self._start_knot_run(predicted, u, y, age, ratio, spread=True)
-                    if run.fits.run(deadline):  # done within the budget: as if not spread
+                    if run.fits.run(deadline, rows):  # done within the budget: not spread
                         x, drift, cost = self._knot_choice(run.fits.result(), x, drift, cost)
                     else:  # on over the next readings; this one takes the plain fit
                         knot.run = run
                         knot.tests_spread += 1
+                    rows = None if rows is None else rows - run.fits.rows
             else:
                 x, drift, cost = self._knot_fit(*job.fit, deadline=deadline)
             self._finish_track(predicted, x, drift, cost, u, y, age, ratio, deadline)
-        if spread and knot.run is not None:
-            self._advance_knot_run(deadline or knots.deadline(self.params))
+        if spread and knot.run is not None and (rows is None or rows > 0):
+            self._advance_knot_run(deadline or knots.deadline(p), rows)
         changed = not all(map(np.array_equal, aimed, (lock.estimate, lock.drift)))
         self.loop.revise = self.loop.awaiting and changed
         return self.loop.revise
@@ -319,8 +319,7 @@ class PhaseTracker:
 
     # ------------------------------------------------------------------ estimation
     def _window(self, readings=None, raw: bool = False):
-        """(set-points (K, N) cycles, readings (K, S + 1), age (K,)) of ``readings`` (default:
-        the window), corrected by the detector's calibration unless ``raw``."""
+        """:meth:`.window.Window.arrays` with the calibration now."""
         return self.window.arrays(self.calibration, readings, raw)
 
     def _noisy(self) -> bool:
@@ -362,8 +361,8 @@ class PhaseTracker:
         )
 
     def _fit_paths(self, *args, deadline=None, **kwargs) -> fit.PathFits:
-        """:meth:`_fit_run` run to its end or until ``deadline``: the hypotheses of a knot or a
-        recovery cost one batched evaluation of the physics per iteration instead of one each."""
+        """:meth:`_fit_run` run to its end or until ``deadline`` (many starts: one batched
+        evaluation of the physics per iteration instead of one each)."""
         run = self._fit_run(*args, **kwargs)
         run.run(deadline)
         return run.result()
@@ -566,14 +565,15 @@ class PhaseTracker:
             self.knot.won(self.loop.tick)
         return choice.best
 
-    def _advance_knot_run(self, deadline) -> None:
-        """The knot test under way, on until ``deadline`` (one unit at least); at its end its
-        winner, if a hypothesis won, is tried on the window now (:meth:`_retry_knot`)."""
+    def _advance_knot_run(self, deadline, rows=None) -> None:
+        """The knot test under way, on until ``deadline`` or ``rows`` evaluated (one unit at
+        least); at its end its winner, if a hypothesis won, is tried on the window now
+        (:meth:`_retry_knot`)."""
         run = self.knot.run
         if self.lock.estimate is None or self.lock.recovering is not None:
             self.knot.run = None  # the lock it was to refine is gone
             return
-        if not run.fits.run(deadline):
+        if not run.fits.run(deadline, rows):
             return
         self.knot.run = None
         winner = knots.spread_winner(run, self._knot_setting("knot_penalty"))

@@ -9,6 +9,7 @@ reading's steps before the latest.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -46,8 +47,8 @@ def predict(stacker, period_fs, x: np.ndarray, u: np.ndarray, age: np.ndarray, d
     m, k = x.shape[0], u.shape[0]
     drift = np.broadcast_to(drift, x.shape)
     delays = u[None, :, :] + x[:, None, :] - age[None, :, None] * drift[:, None, :]
-    out = stacker.evaluate(delays.reshape(m * k, x.shape[1]) * period_fs)
-    pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
+    energies, power = stacker.energies_and_power(delays.reshape(m * k, x.shape[1]) * period_fs)
+    pred = np.concatenate([energies, power[:, None]], axis=1)
     return pred.reshape(m, k, -1)
 
 
@@ -123,11 +124,14 @@ class PathProblem(NamedTuple):
     prior_mean: np.ndarray  # (M, D)
     offsets: np.ndarray  # (N + 1, N) finite-difference points of the Jacobian
     blocks: np.ndarray  # (K, N) the path's indices per reading
+    evaluated: list  # [rows the physics evaluated for it so far]: its work
 
 
-def _walk_rows(k: int, n: int, d: int, gaps: np.ndarray) -> np.ndarray:
+@functools.lru_cache(maxsize=64)
+def _walk_rows(k: int, n: int, d: int, gaps: tuple) -> np.ndarray:
     """The walk between readings as rows over the variables: X_i - X_i-1 - gap mu, scaled to
-    std walk (gap: steps between the readings)."""
+    std walk (gap: steps between the readings); read-only, kept for the next window of the same
+    shape and gaps."""
     nz = k * n + n
     walk = np.zeros(((k - 1) * n, d))
     for i in range(1, k):  # X_i - X_i-1 - gap mu, std walk sqrt(gap)
@@ -136,7 +140,33 @@ def _walk_rows(k: int, n: int, d: int, gaps: np.ndarray) -> np.ndarray:
         walk[rows, i * n : (i + 1) * n] = np.eye(n) / gap**0.5
         walk[rows, (i - 1) * n : i * n] = -np.eye(n) / gap**0.5
         walk[rows, k * n : nz] = -np.eye(n) * gap**0.5
+    walk.flags.writeable = False
     return walk
+
+
+@functools.lru_cache(maxsize=64)
+def _walk(k: int, n: int, d: int, gaps: tuple, m: int) -> np.ndarray:
+    """The walk rows of M starts without knots: one read-only view (M, (K - 1) N, D)."""
+    return np.broadcast_to(_walk_rows(k, n, d, gaps), (m, (k - 1) * n, d))
+
+
+@functools.lru_cache(maxsize=64)
+def _walk_normal(k: int, n: int, d: int, gaps: tuple, m: int, w_sd: float) -> np.ndarray:
+    """walk^T walk / w_sd^2 (M, D, D) of M starts without knots (read-only, kept)."""
+    walk = _walk(k, n, d, gaps, m)
+    out = walk.transpose(0, 2, 1) @ walk / w_sd**2
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _index(k: int, n: int, h: float) -> tuple:
+    """(offsets (N + 1, N): the Jacobian's finite-difference points; blocks (K, N): the path's
+    variables per reading), read-only."""
+    offsets = np.concatenate([np.zeros((1, n)), h * np.eye(n)])
+    blocks = (np.arange(k)[:, None] * n + np.arange(n)[None]).reshape(k, n)
+    offsets.flags.writeable = blocks.flags.writeable = False
+    return offsets, blocks
 
 
 def _add_knots(walk, prior_w, knots, gaps, k: int, n: int, d: int, knot_prior: float):
@@ -178,7 +208,8 @@ def path_problem(
     level = nz + (1 if ratio else 0) + (1 if fits_gain else 0) if fits_level else -1
     d = nz + (1 if ratio else 0) + fits_gain + fits_level + (0 if knots is None else 1)
     gaps = np.maximum(age[:-1] - age[1:], 1.0)  # steps between consecutive readings
-    walk = np.broadcast_to(_walk_rows(k, n, d, gaps), (m, (k - 1) * n, d))
+    gap_key = tuple(gaps.tolist())
+    walk = _walk(k, n, d, gap_key, m)
     prior_w = np.zeros((m, d))
     prior_w[:, k * n : nz] = 1.0 / drift_prior**2
     if ratio:
@@ -191,12 +222,16 @@ def path_problem(
         walk = _add_knots(walk, prior_w, knots, gaps, k, n, d, knot_prior)
     prior_mean = np.zeros((m, d))
     prior_mean[:, k * n : nz] = drift.copy()
-    h = 1e-4
+    if knots is None:
+        walk_normal = _walk_normal(k, n, d, gap_key, m, float(w_sd))
+    else:
+        walk_normal = walk.transpose(0, 2, 1) @ walk / w_sd**2
+    offsets, blocks = _index(k, n, 1e-4)
     return PathProblem(
         stacker=stacker,
         period_fs=period_fs,
         u=u,
-        u_centred=u - u.mean(axis=0),
+        u_centred=u - np.add.reduce(u, axis=0) / k,  # (u.mean(axis=0), without its overhead)
         y=y,
         ratio=ratio,
         gain=gain,
@@ -206,11 +241,12 @@ def path_problem(
         r_sd=r_sd,
         w_sd=w_sd,
         walk=walk,
-        walk_normal=walk.transpose(0, 2, 1) @ walk / w_sd**2,
+        walk_normal=walk_normal,
         prior_w=prior_w,
         prior_mean=prior_mean,
-        offsets=np.concatenate([np.zeros((1, n)), h * np.eye(n)]),
-        blocks=(np.arange(k)[:, None] * n + np.arange(n)[None]).reshape(k, n),
+        offsets=offsets,
+        blocks=blocks,
+        evaluated=[0],
     )
 
 
@@ -224,8 +260,10 @@ def path_residuals(pb: PathProblem, z: np.ndarray, with_jacobian: bool):
     pts = pb.u[None] + xs + (z[:, pb.nz, None, None] * pb.u_centred[None] if pb.ratio else 0.0)
     if with_jacobian:
         pts = pts[:, :, None, :] + pb.offsets[None, None]  # (M, K, N + 1, N)
-    out = pb.stacker.evaluate(pts.reshape(-1, n) * pb.period_fs)
-    pred = np.concatenate([out.slot_energies, out.power[:, None]], axis=1)
+    rows = pts.reshape(-1, n)
+    pb.evaluated[0] += rows.shape[0]
+    energies, power = pb.stacker.energies_and_power(rows * pb.period_fs)
+    pred = np.concatenate([energies, power[:, None]], axis=1)
     if pb.gain >= 0:  # the slot energies (not the power) times 1 + g
         scale = np.repeat(1.0 + z[:, pb.gain], pred.shape[0] // m)
         pred[:, :-1] *= scale[:, None]
@@ -238,14 +276,43 @@ def path_residuals(pb: PathProblem, z: np.ndarray, with_jacobian: bool):
     return pred[:, :, 0] - pb.y[None], jac_k
 
 
+def _rows(a: np.ndarray, i: np.ndarray) -> np.ndarray:
+    """``a[i]`` for reading (``i``: sorted distinct starts): ``a`` itself where ``i`` takes every
+    row (the same figures in the same layout, without the copy); a view the caller must not
+    change."""
+    if i.size == a.shape[0] and (a.shape[0] == 1 or a.strides[0] != 0):
+        return a
+    return a[i]
+
+
+def _diagonal(a: np.ndarray) -> np.ndarray:
+    """A writeable view (M, D) of the diagonals of the C-contiguous ``a`` (M, D, D)."""
+    m, d = a.shape[:2]
+    return a.reshape(m, d * d)[:, :: d + 1]
+
+
+def _path_blocks(a: np.ndarray, k: int, n: int) -> np.ndarray:
+    """A writeable view (M, K, N, N) of the K diagonal blocks of the C-contiguous ``a`` (M, D, D)
+    over the path's variables (reading by reading): block b starts at flat b n (D + 1)."""
+    m, d = a.shape[:2]
+    flat = a.reshape(m, d * d)[:, : k * n * (d + 1)].reshape(m, k, n * (d + 1))
+    return flat[:, :, : n * d].reshape(m, k, n, d)[..., :n]
+
+
+def _mean_squares(e: np.ndarray) -> np.ndarray:
+    """The mean square of each start's residuals (M, K, R) -> (M,): what ``np.mean(e ** 2,
+    axis=(1, 2))`` computes (the same sum, then the same division), without its overhead."""
+    return np.add.reduce(e * e, axis=(1, 2)) / (e.shape[1] * e.shape[2])
+
+
 def path_objective(pb: PathProblem, z, err, i) -> np.ndarray:
     """The whole cost of starts i at z (len(i), D): readings, walk and priors."""
-    dz = z - pb.prior_mean[i]
-    walk_res = np.einsum("mrd,md->mr", pb.walk[i], z)
+    dz = z - _rows(pb.prior_mean, i)
+    walk_res = np.einsum("mrd,md->mr", _rows(pb.walk, i), z)
     return (
         np.einsum("mkr,mkr->m", err, err) / pb.r_sd**2
         + np.einsum("mr,mr->m", walk_res, walk_res) / pb.w_sd**2
-        + np.einsum("md,md,md->m", dz, dz, pb.prior_w[i])
+        + np.einsum("md,md,md->m", dz, dz, _rows(pb.prior_w, i))
     )
 
 
@@ -253,11 +320,13 @@ def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
     """J^T J (M, D, D) and J^T r (M, D) of the whole cost of starts i at z; no full Jacobian is
     formed: the readings (block diagonal in the path, plus r), the walk and the priors."""
     r_var, blocks, nz = pb.r_sd**2, pb.blocks, pb.nz
-    jtj = pb.walk_normal[i]
+    k, n = blocks.shape
+    jtj = pb.walk_normal[i]  # (a copy: the sums go into it)
     jtr = np.einsum("mde,me->md", jtj, z)
     data_jtj = np.einsum("mkri,mkrj->mkij", jac_k, jac_k) / r_var  # (M, K, N, N)
-    jtj[:, blocks[:, :, None], blocks[:, None, :]] += data_jtj
-    jtr[:, blocks] += np.einsum("mkri,mkr->mki", jac_k, err) / r_var
+    _path_blocks(jtj, k, n)[...] += data_jtj
+    path_part = jtr[:, : k * n].reshape(jtr.shape[0], k, n)  # (a view: the KN are contiguous)
+    path_part += np.einsum("mkri,mkr->mki", jac_k, err) / r_var
     if pb.ratio:  # d phase / d r = the centred set-points
         g = np.einsum("mkrn,kn->mkr", jac_k, pb.u_centred)
         cross = np.einsum("mkri,mkr->mki", jac_k, g) / r_var
@@ -296,9 +365,9 @@ def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
             both = np.einsum("mkr,kr->m", f, ones) / r_var
             jtj[:, pb.gain, li] += both
             jtj[:, li, pb.gain] += both
-    idx = np.arange(pb.d)
-    jtj[:, idx, idx] += pb.prior_w[i]
-    jtr += pb.prior_w[i] * (z - pb.prior_mean[i])
+    prior_w = _rows(pb.prior_w, i)
+    _diagonal(jtj)[...] += prior_w
+    jtr += prior_w * (z - _rows(pb.prior_mean, i))
     return jtj, jtr
 
 
@@ -315,37 +384,40 @@ def _lm_iterations(pb: PathProblem, z, iterations: int, prune, chunk=None):
     err = jac_k = None
     cost_, data_cost = np.full(m, np.inf), np.full(m, np.inf)
     for gi, g in enumerate(groups):
-        e, j = path_residuals(pb, z[g], True)
+        zg = _rows(z, g)
+        e, j = path_residuals(pb, zg, True)
         if len(groups) == 1:  # as they come (their layout sets the sums' rounding downstream)
             err, jac_k = e, j
         else:
             if err is None:
                 err, jac_k = np.empty((m, *e.shape[1:])), np.empty((m, *j.shape[1:]))
             err[g], jac_k[g] = e, j
-        cost_[g] = path_objective(pb, z[g], e, g)
-        data_cost[g] = np.mean(e * e, axis=(1, 2))
+        cost_[g] = path_objective(pb, zg, e, g)
+        data_cost[g] = _mean_squares(e)
         if chunk is not None or gi == len(groups) - 1:
             yield cost_, data_cost, iterations <= 0 and gi == len(groups) - 1
     lam = np.full(m, 1e-3)
-    eye = np.eye(pb.d)
     act = np.arange(m)  # the starts still iterating
     for it in range(iterations):
         if prune is not None and it == prune[0] and act.size > prune[1]:
             act = np.union1d(np.argsort(cost_)[: prune[1]], [0])  # the first iterates on
         parts = [act[a : a + size] for a in range(0, act.size, size)]
         for pi, part in enumerate(parts):
-            _lm_step(pb, z, part, err, jac_k, cost_, data_cost, lam, eye)
+            _lm_step(pb, z, part, err, jac_k, cost_, data_cost, lam)
             yield cost_, data_cost, it == iterations - 1 and pi == len(parts) - 1
 
 
-def _lm_step(pb: PathProblem, z, act, err, jac_k, cost_, data_cost, lam, eye) -> None:
+def _lm_step(pb: PathProblem, z, act, err, jac_k, cost_, data_cost, lam) -> None:
     """One Levenberg-Marquardt iteration of starts ``act``, in place."""
-    za = z[act]
-    jtj, jtr = path_normal_equations(pb, za, err[act], jac_k[act], act)
-    diag = np.einsum("mii->mi", jtj)
-    a = jtj + (lam[act, None] * (diag + 1e-12))[:, :, None] * eye[None]
-    step = -np.linalg.solve(a, jtr[:, :, None])[:, :, 0]
-    trial = za + np.clip(step, -0.1, 0.1)
+    za = _rows(z, act)
+    jtj, jtr = path_normal_equations(pb, za, _rows(err, act), _rows(jac_k, act), act)
+    damping = lam[act, None] * (np.einsum("mii->mi", jtj) + 1e-12)
+    _diagonal(jtj)[...] += damping  # (jtj is the equations' own copy)
+    step = -np.linalg.solve(jtj, jtr[:, :, None])[:, :, 0]
+    trial = za + np.minimum(np.maximum(step, -0.1), 0.1)  # (np.clip, without its overhead)
+    if act.size == 1:
+        _try_one(pb, z, act, trial, err, jac_k, cost_, data_cost, lam)
+        return
     t_err, _ = path_residuals(pb, trial, False)
     t_cost = path_objective(pb, trial, t_err, act)
     better = t_cost < cost_[act]
@@ -354,8 +426,27 @@ def _lm_step(pb: PathProblem, z, act, err, jac_k, cost_, data_cost, lam, eye) ->
         moved = act[better]
         z[moved] = trial[better]
         cost_[moved] = t_cost[better]
-        data_cost[moved] = np.mean(t_err[better] ** 2, axis=(1, 2))
+        data_cost[moved] = _mean_squares(t_err[better])
         err[moved], jac_k[moved] = path_residuals(pb, z[moved], True)
+
+
+def _try_one(pb: PathProblem, z, act, trial, err, jac_k, cost_, data_cost, lam) -> None:
+    """The trial of a single start (a tracking fit's, which moves nearly every time): evaluated
+    with its Jacobian at once, taken if it lowers the cost. The same figures as the trial's
+    residuals first and the Jacobian after a move (the physics evaluates each row alone), with
+    one evaluation less."""
+    t_err, t_jac = path_residuals(pb, trial, True)
+    t_cost = path_objective(pb, trial, t_err, act)
+    a = int(act[0])
+    if not t_cost[0] < cost_[a]:
+        lam[a] *= 10.0
+        return
+    lam[a] *= 0.3
+    rows = slice(a, a + 1)
+    z[rows] = trial
+    cost_[a] = t_cost[0]
+    data_cost[a] = _mean_squares(t_err)[0]
+    err[rows], jac_k[rows] = t_err, t_jac
 
 
 def fit_paths(*args, deadline=None, **kwargs) -> PathFits:
@@ -439,22 +530,35 @@ class PathFitRun:
         self.done = False
         self.units = 0  # units of work run so far (chunked: see run)
         self._unit_s = 0.0  # how long the last unit took
+        self._unit_rows = 0  # ... and the rows the physics evaluated in it
         if not self._chunked:  # the start's evaluation, as part of building the fit
             self._objective, self._data_cost, self.done = next(self._steps)
 
-    def run(self, deadline=None) -> bool:
-        """Run on until the end, or until ``deadline`` (time.perf_counter()); whether the fit is
-        done (as soon as its last unit ran). At least one unit runs. A unit is an iteration of
-        every start; with ``chunk``, a group's first evaluation or iteration, and none starts
-        that the last one's time says would end past the deadline."""
-        first = True
-        while not self.done and (first or deadline is None or self._has_time(deadline)):
+    @property
+    def rows(self) -> int:
+        """The rows (delay vectors) the physics evaluated for this fit so far: its work."""
+        return self._pb.evaluated[0]
+
+    def run(self, deadline=None, rows=None) -> bool:
+        """Run on until the end, until ``deadline`` (time.perf_counter()), or until ``rows``
+        more rows were evaluated; whether the fit is done (as soon as its last unit ran). At
+        least one unit runs. A unit is an iteration of every start; with ``chunk``, a group's
+        first evaluation or iteration, and none starts that the last one's time (or rows) says
+        would end past the deadline (or the rows)."""
+        first, start = True, self.rows
+        while not self.done and (first or self._may_go_on(deadline, rows, start)):
             first = False
-            t0 = time.perf_counter()
+            t0, before = time.perf_counter(), self.rows
             self._objective, self._data_cost, self.done = next(self._steps)
             self._unit_s = time.perf_counter() - t0
+            self._unit_rows = self.rows - before
             self.units += 1
         return self.done
+
+    def _may_go_on(self, deadline, rows, start) -> bool:
+        if rows is not None and self.rows - start + self._unit_rows > rows:
+            return False
+        return deadline is None or self._has_time(deadline)
 
     def _has_time(self, deadline: float) -> bool:
         now = time.perf_counter()

@@ -102,6 +102,28 @@ class Knots:
         return True
 
 
+def test_rows(n: int, k: int, readings: int, iterations: int) -> int:
+    """The rows the physics evaluates in a whole knot test of :func:`knot_hypotheses` on a
+    window of ``k`` readings (at most: each hypothesis's start and every iteration's trial and
+    Jacobian), to weigh against the work budget before it starts."""
+    hypotheses = 1 + 2 * n * min(readings, k - 1)
+    return (iterations + 1) * hypotheses * k * (n + 2)
+
+
+def budget_rows(p: TrackerParams, scale: float):
+    """The rows a reading may evaluate for a knot test (``work_budget`` over the stage's
+    ``scale``, :attr:`.model.RigModel.work_scale`), or None (no budget)."""
+    return p.work_budget / scale if p.work_budget else None
+
+
+def over_budget(p: TrackerParams, n: int, k: int, noisy: bool, scale: float) -> bool:
+    """Whether a knot test on a window of ``k`` readings would take more than a reading's work
+    budget: it is then spread over readings (:func:`spreads`)."""
+    readings, iterations = (setting(p, s, noisy) for s in ("knot_readings", "knot_iterations"))
+    rows = budget_rows(p, scale)
+    return rows is not None and test_rows(n, k, readings, iterations) > rows
+
+
 def setting(p: TrackerParams, name: str, noisy: bool):
     """The knot test's setting ``name`` for this detector: ``noisy_<name>`` on a noisy one
     (``knot_readings``, ``knot_walk_sigmas``, ``knot_iterations``, ``knot_penalty``)."""
@@ -114,10 +136,12 @@ def deadline(p: TrackerParams):
     return time.perf_counter() + budget / 1e3 if budget else None
 
 
-def spreads(p: TrackerParams, deadline, noisy: bool) -> bool:
-    """Whether a knot test the budget cuts short runs on over the next readings: on a noisy
-    detector. A clean one takes the test as far as it got: its knots matter a reading sooner."""
-    return deadline is not None and p.slice_knot_test and noisy
+def spreads(p: TrackerParams, deadline, noisy: bool, over: bool) -> bool:
+    """Whether a knot test runs on over the next readings: one ``over`` the work budget
+    (:func:`over_budget`), and on a noisy detector one a real-time ``deadline`` would cut short.
+    A clean detector takes a test the deadline cuts as far as it got: its knots matter a
+    reading sooner."""
+    return over or (deadline is not None and p.slice_knot_test and noisy)
 
 
 def knot_hypotheses(n: int, k: int, knot_readings: int, start_cycles: float):

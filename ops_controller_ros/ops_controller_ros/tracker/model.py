@@ -5,13 +5,31 @@ lines' lag and the random walk the path fits assume.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import replace
 
 import numpy as np
+from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
 
 from . import fit
 from .params import TrackerParams
 from .weights import WeightedStacker, source_noise_weights
+
+
+def at_wavelength(stacker, wavelength_nm: float):
+    """``stacker`` (a :class:`~ops_sim_ros.physics.PulseStacker`) at another carrier wavelength:
+    the same pulses, geometry and detector, so only the carrier's period and frequency change.
+    Building a stacker anew (``stacker_from_config``) takes about a millisecond, and the period
+    correction moves the wavelength after most readings of a window with a whole-cycle move;
+    this copy takes microseconds and evaluates exactly as the new one would (the tracker's tests
+    compare the two)."""
+    out = copy.copy(stacker)
+    out.wavelength_nm = float(wavelength_nm)
+    out.optical_period_fs = out.wavelength_nm / SPEED_OF_LIGHT_NM_PER_FS
+    out.omega0 = 2.0 * np.pi / out.optical_period_fs
+    out._bits_t_complex = out._bits_t * (1j * out.omega0)
+    out._buffers = {}  # scratch arrays of its own
+    return out
 
 
 def told_noise(params: TrackerParams, model) -> TrackerParams:
@@ -54,6 +72,7 @@ class RigModel:
             np.asarray(r, dtype=np.float64).reshape(-1) for r in setpoint_range_fs
         )
         self.reach_fs = reach_fs
+        self._bounds = (None, None, None)  # (period, low, high): the range in cycles
         # A command acts this many steps late: a reading is matched to the command in effect
         # then, and a command aims that far ahead.
         self.latency = int(getattr(config, "latency_steps", 0))
@@ -64,6 +83,9 @@ class RigModel:
         # the path fits' random walk per step: by default six times the model's jitter, so that
         # a rig noisier than nominal is still followed
         self.walk_sigma = max(6.0 * config.jitter_sigma_cycles, 1e-4) if w is None else w
+        # One row (delay vector) the physics evaluates, in the work budget's unit (a row at
+        # N = 5): its matrix product grows with the square of the patterns (2^N).
+        self.work_scale = (self.stacker.num_patterns / 32.0) ** 2
         # A source told noisy moves the stacked slot, which the fits lean on: it counts as a
         # noisy detector, as does a detector noise told of at least told_noisy_threshold.
         source = source_noise > 0.0
@@ -86,10 +108,14 @@ class RigModel:
 
     def adopt(self, calibration) -> float:
         """Take the calibration's optics; returns the old period over the new (the same fs are
-        this many new cycles per old one)."""
+        this many new cycles per old one). A new wavelength alone (every period correction)
+        retunes the stacker (:func:`at_wavelength`) instead of building it anew."""
         old_period = self.period_fs
-        self.stacker = calibration.stacker()
-        self.period_fs = calibration.period_fs
+        if calibration.pulse_fwhm_fs == self.stacker.pulse_fwhm_fs:
+            self.stacker = at_wavelength(self.stacker, calibration.wavelength_nm)
+        else:
+            self.stacker = calibration.stacker()
+        self.period_fs = self.stacker.optical_period_fs
         return old_period / self.period_fs
 
     def reading(self, power, pulse_energies) -> np.ndarray:
@@ -108,7 +134,10 @@ class RigModel:
         within their range."""
         if self.lag_gain is not None:
             u = position + (u - position) / self.lag_gain
-        return np.clip(u, self.range_fs[0] / self.period_fs, self.range_fs[1] / self.period_fs)
+        if self._bounds[0] != self.period_fs:  # the range in cycles of the period now
+            period = self.period_fs
+            self._bounds = (period, self.range_fs[0] / period, self.range_fs[1] / period)
+        return np.minimum(np.maximum(u, self._bounds[1]), self._bounds[2])  # (np.clip)
 
     def cycles(self, fs) -> np.ndarray:
         """Set-points in cycles of the model."""
@@ -129,4 +158,5 @@ class RigModel:
 
     def slot_residuals(self, u, path, y) -> np.ndarray:
         """The slot energies predicted at the path (K, N) minus those read (K, S)."""
-        return self.stacker.evaluate((u + path) * self.period_fs).slot_energies - y[:, :-1]
+        energies, _ = self.stacker.energies_and_power((u + path) * self.period_fs)
+        return energies - y[:, :-1]

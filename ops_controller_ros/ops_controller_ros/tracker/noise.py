@@ -25,6 +25,18 @@ def _fits() -> deque:
     return deque(maxlen=FIT_VAR_FITS)
 
 
+def median(values) -> float:
+    """The median of a few floats, as ``np.median`` gives it (the middle one, or the mean of the
+    middle two: their sum halved), without its overhead; NaN if one is NaN."""
+    ordered = sorted(values)
+    n = len(ordered)
+    if n == 0 or any(v != v for v in ordered):
+        return float("nan")
+    if n % 2:
+        return float(ordered[n // 2])
+    return float((ordered[n // 2 - 1] + ordered[n // 2]) / 2.0)
+
+
 @dataclass
 class Noise:
     """The noise state of one run (from a reset)."""
@@ -38,6 +50,8 @@ class Noise:
     # to the next (:meth:`note_fit`), and whether they found the detector noisy (kept)
     white_vars: deque = field(default_factory=_fits)
     fits_noisy: bool = False
+    # the medians of the two, kept until the next figure comes (a fit asks for them each time)
+    _medians: list = field(default_factory=lambda: [None, None], repr=False)
 
     # ------------------------------------------------------------------ what it implies
     def noisy(self, p: TrackerParams) -> bool:
@@ -48,7 +62,15 @@ class Noise:
 
     def white_var(self) -> float:
         """The median of the tracking fits' last noise variances (:meth:`note_fit`)."""
-        return float(np.median(self.white_vars))
+        if self._medians[1] is None:
+            self._medians[1] = median(self.white_vars)
+        return self._medians[1]
+
+    def fit_var(self) -> float:
+        """The median of the tracking fits' last mean squared residuals."""
+        if self._medians[0] is None:
+            self._medians[0] = median(self.fit_vars)
+        return self._medians[0]
 
     def var_assumed(self, p: TrackerParams) -> float:
         """The noise variance the excursion and the tolerance are sized for: the assumed one
@@ -75,7 +97,7 @@ class Noise:
         noise is kept."""
         measured = self.var or 0.0
         if len(self.fit_vars) >= FIT_VAR_MIN:
-            var = float(np.median(self.fit_vars))
+            var = self.fit_var()
         else:
             var = p.residual_tolerance + measured
         if self.noisy(p):
@@ -141,10 +163,12 @@ class Noise:
         longer window. Fewer than that many figures decide nothing: the median of a few is
         moved by a knot's wake."""
         self.fit_vars.append(cost)
+        self._medians[0] = None
         if residuals is None:
             return False
         change = np.diff(residuals, axis=0)
         self.white_vars.append(float(np.mean(change * change)) / 2.0)
+        self._medians[1] = None
         if len(self.white_vars) < FIT_VAR_FITS:
             return False
         if self.white_var() >= p.fit_noisy_threshold**2:

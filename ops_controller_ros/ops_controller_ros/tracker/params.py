@@ -287,6 +287,17 @@ class TrackerParams:
         "next readings",
         node=True,
     )
+    # A budget of work per reading for the knot test, counted in rows the physics evaluates
+    # (delay vectors, each weighed as (2^N / 32)^2 rows at N = 5: its matrix product's share), so
+    # that it holds on any machine: a test whose work (knots.test_rows) would exceed it is spread
+    # over the next readings, each running as much of it as fits (at least one unit). The default
+    # holds whole every test at N <= 5 (the largest, a noisy detector's: 46,410 rows) and spreads
+    # those at N = 7 (a clean detector's: 303,408), each of which takes many 100 Hz steps.
+    work_budget: float = _declare(
+        50000.0,
+        "most work per reading on a knot test, in rows evaluated at N = 5 (0: none)",
+        0.0,
+    )
     knot_walk_sigmas: float = _declare(
         2.0, "a path step this far off the drift (walk stds) asks for the knot test"
     )

@@ -76,8 +76,12 @@ class Period:
         right."""
         lo, hi = rig.range_fs
         period = rig.period_fs
+        x = base * period
+        margin = float(RANGE_MARGIN_CYCLES) * period
+        if not ((x - lo < margin) | (hi - x < margin)).any():
+            return None  # (as inward_periods finds: none near a limit)
         most = periods_per_reading(rig.reach_fs, period)
-        periods = inward_periods(base * period, lo, hi, period, RANGE_MARGIN_CYCLES, most)
+        periods = inward_periods(x, lo, hi, period, RANGE_MARGIN_CYCLES, most)
         if not periods.any():
             return None
         room = np.minimum(base - lo / period, hi / period - base)

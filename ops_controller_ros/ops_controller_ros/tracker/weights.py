@@ -27,6 +27,12 @@ class WeightedStacker:
         out = self.inner.evaluate(delays_fs)
         return _Scaled(out.slot_energies * self.weights[:-1], out.power * self.weights[-1])
 
+    def energies_and_power(self, d: np.ndarray):
+        """Weighed slot energies (B, S) and power (B,) of a checked (B, N) float64 array of
+        delays, fs (:meth:`~ops_sim_ros.physics.PulseStacker.energies_and_power`)."""
+        energies, power = self.inner.energies_and_power(d)
+        return energies * self.weights[:-1], power * self.weights[-1]
+
 
 class _Scaled:
     __slots__ = ("power", "slot_energies")

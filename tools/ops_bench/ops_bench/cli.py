@@ -47,7 +47,9 @@ TOOLS: dict[str, Tool] = {
     "rig-calibration": Tool("rig_calibration", "calibrate on the simulated lab, seed by seed"),
     "rig-tracker": Tool("rig_tracker", "simulated lab + rig + tracker over DDS, a long run"),
     "tracker": Tool("tracker", "the tracker's goals: episodes per mode, mismatch, compute"),
-    "tracker-compute": Tool("tracker_compute", "the tracker's compute per reading (100 Hz budget)"),
+    "controller-speed": Tool(
+        "controller_speed", "compute per reading: tracker, SPGD-PID, learned models; N 3/5/7"
+    ),
     "tracker-reference": Tool(
         "tracker_reference", "record the tracker's runs on fixed cases; compare two records"
     ),

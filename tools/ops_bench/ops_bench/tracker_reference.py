@@ -17,8 +17,8 @@ stage 7. A budget of 1e-6 ms is past before any unit ends, so those runs do not 
 machine's speed. BLAS runs on one thread (its sums' rounding depends on the thread count).
 
 Usage (after `source setup.bash`):
-  python -m ops_bench.tracker_reference record /tmp/tracker_ref_before [--steps 300] [--only RE]
-  python -m ops_bench.tracker_reference compare /tmp/tracker_ref_before /tmp/tracker_ref_after
+  ops-bench tracker-reference record /tmp/tracker_ref_before [--steps 300] [--only RE]
+  ops-bench tracker-reference compare /tmp/tracker_ref_before /tmp/tracker_ref_after
       [--rtol 1e-9]
 """
 

@@ -1,0 +1,198 @@
+"""Each controller's compute per reading, in process: the tracker, SPGD-PID and every shipped
+learned model, at N = 3, 5 and 7.
+
+Per stage, each controller runs ``--steps`` readings of the testing split of ``--mode`` (the
+ideal rig, told to the controller) for each seed, as the nodes drive it: ``command`` (with
+``think`` and the revised command where the controller has one, ``controllers.next_command``) and
+``observe`` of each reading are its compute; the simulator's step is not. A learned model runs
+through the policy runner (``ops_controller_ros.policy_node.PolicyController``, as ``soak`` and
+``rate-sweep`` build it), on its own stage and detector only (models exist for N = 3 and 5).
+
+Compute is the calling thread's CPU time (``time.thread_time``), BLAS and torch on one thread (as
+every node and CLI runs them): a machine shared with other jobs then slows it less than the wall
+clock, though it still does (caches, a shared core). Each run is repeated ``--repeats`` times
+with the same seeds (the same readings: every controller here is deterministic), and each
+reading's least time is kept, so a moment's interruption falls out. The 1-minute load average
+at the start and at the end is printed and written beside the figures; ``--busy N`` runs N
+busy-looping processes beside the measurement.
+
+Usage (after `source setup.bash`):
+  ops-bench controller-speed [--stages 3 5 7] [--mode hard] [--steps 300] [--seeds 1 2]
+      [--repeats 3] [--controllers tracker spgd models] [--busy 0] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from ops_contract.config import MODES
+
+from ops_bench import REPO
+from ops_bench.docs import publish
+
+TITLE = "## Compute per reading, by controller"
+CONTROLLERS = ("tracker", "spgd", "models")
+
+
+def model_dirs(stage: int) -> list[Path]:
+    """The shipped models (``models/*/metadata.json``) of this stage."""
+    from ops_controller_ros.policy_io import read_metadata
+
+    out = []
+    for meta in sorted((REPO / "models").glob("*/metadata.json")):
+        if int(read_metadata(meta.parent).get("stage", 0)) == stage:
+            out.append(meta.parent)
+    return out
+
+
+def run_once(name: str, stage: int, mode: str, steps: int, seed: int, stack=None) -> tuple:
+    """Per-reading compute (ms) of one run, and its readings' P_N/P_max."""
+    from ops_contract.config import make_config
+    from ops_controller_ros.controllers import next_command
+    from ops_experiments.timed_loop import make_agent
+    from ops_sim_ros.env import OpsEnv
+
+    detector = "polarizer" if stack is None else (stack.meta.detector or "polarizer")
+    config = make_config(stage=stage, mode=mode, split="test", detector=detector)
+    env = OpsEnv.from_config(config, max_episode_steps=steps + 1)
+    _, info = env.reset(seed=1000 * seed)
+    ctl, _ = make_agent(name, config, seed, info["setpoints_fs"], model=stack)
+    policy = stack is not None
+    ms, power = np.empty(steps), np.empty(steps)
+    try:
+        for t in range(steps):
+            t0 = time.thread_time()
+            command = next_command(ctl)
+            spent = time.thread_time() - t0
+            r = env.step_setpoints(command)
+            power[t] = float(r.power[0])
+            t0 = time.thread_time()
+            if policy:  # (the authors' observation holds the applied delays)
+                ctl.observe(power[t], r.pulse_energies[0], applied=r.applied_fs[0])
+            else:
+                ctl.observe(power[t], r.pulse_energies[0])
+            ms[t] = 1e3 * (spent + time.thread_time() - t0)
+    finally:
+        env.close()
+    return ms, power
+
+
+def measure(name: str, stage: int, args, stack=None) -> dict:
+    """One table row: each reading's least compute over the repeats, all seeds pooled."""
+    per_seed, locked = [], []
+    for seed in args.seeds:
+        runs = [
+            run_once(name, stage, args.mode, args.steps, seed, stack) for _ in range(args.repeats)
+        ]
+        per_seed.append(np.min([ms for ms, _ in runs], axis=0))
+        locked.append(np.mean(runs[0][1][args.steps // 2 :] >= 0.95))
+    ms = np.concatenate(per_seed)
+    label = name if stack is None else f"`models/{Path(name).name}`"
+    row = {
+        "controller": label,
+        "N": stage,
+        "median": float(np.median(ms)),
+        "p99": float(np.percentile(ms, 99)),
+        "worst": float(ms.max()),
+        "over 20 ms": int(np.sum(ms > 20.0)),
+        "locked": 100.0 * float(np.mean(locked)),
+        "readings": ms.size,
+    }
+    print(
+        f"[controller-speed] {label} N={stage}: median {row['median']:.3f} ms, p99 "
+        f"{row['p99']:.2f} ms, worst {row['worst']:.1f} ms ({row['readings']} readings; second "
+        f"halves >= 0.95: {row['locked']:.0f} %)",
+        flush=True,
+    )
+    return row
+
+
+def rows_for(args) -> list[dict]:
+    from ops_experiments.timed_loop import load_model_stack
+
+    rows = []
+    for stage in args.stages:
+        for name in ("tracker", "spgd"):
+            if name in args.controllers:
+                rows.append(measure(name, stage, args))
+        if "models" in args.controllers:
+            for path in model_dirs(stage):
+                rows.append(measure(str(path), stage, args, load_model_stack(str(path), stage)))
+    return rows
+
+
+def table(rows: list[dict]) -> list[str]:
+    out = [
+        "| controller | N | median ms | p99 ms | worst ms | readings over 20 ms | readings "
+        "| second halves >= 0.95, % |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        out.append(
+            f"| {r['controller']} | {r['N']} | {r['median']:.3f} | {r['p99']:.2f} | "
+            f"{r['worst']:.1f} | {r['over 20 ms']} | {r['readings']} | {r['locked']:.0f} |"
+        )
+    return out
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--stages", type=int, nargs="+", default=[3, 5, 7])
+    ap.add_argument("--mode", choices=MODES, default="hard")
+    ap.add_argument("--steps", type=int, default=300, help="readings per run")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--repeats", type=int, default=3, help="runs per seed; least time per reading")
+    ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
+    ap.add_argument("--busy", type=int, default=0, help="busy processes beside the measurement")
+    ap.add_argument("--write", action="store_true", help="write docs/benchmarks.md")
+    args = ap.parse_args(argv)
+    if args.steps < 1 or args.repeats < 1:
+        ap.error("--steps and --repeats must be >= 1")
+    return args
+
+
+def main(argv=None) -> int:
+    from ops_contract.threads import limit_blas_threads, limit_torch_threads
+
+    args = parse_args(argv)
+    limit_blas_threads()
+    if "models" in args.controllers:
+        limit_torch_threads()
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
+    load_start = os.getloadavg()[0]
+    try:
+        rows = rows_for(args)
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()
+    load_end = os.getloadavg()[0]
+    command = "ops-bench controller-speed " + " ".join(sys.argv[1:])
+    title = TITLE + (f", {args.busy} busy processes beside it" if args.busy else "")
+    lines = [
+        title,
+        "",
+        f"Command: `{command.strip()}` ({args.mode} mode, testing split, the ideal rig; "
+        f"{args.steps} readings per run, seeds {' '.join(map(str, args.seeds))}, each run "
+        f"{args.repeats} time(s) and each reading's least time kept; BLAS and torch on one thread; "
+        f"{os.cpu_count()} cores, {args.busy} busy processes beside it, 1-minute load "
+        f"{load_start:.1f} at the start and {load_end:.1f} at the end). Compute per reading: "
+        "the calling thread's CPU time in `command` (with `think` and the revised command) and "
+        "`observe`; a node at 100 Hz has 10 ms. Learned models run through the policy runner "
+        "on their own stage (there are none for N = 7).",
+        "",
+        *table(rows),
+        "",
+    ]
+    publish(title, lines, write=args.write)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
