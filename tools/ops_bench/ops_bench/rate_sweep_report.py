@@ -183,20 +183,25 @@ def figure(rows: list[dict[str, Any]], path: Path, title: str) -> None:
         ("power_rms_pct", "rms_min", "rms_max", GOAL_RMS_PCT, "P_N/P_max rms, %"),
     )
     controllers = list(dict.fromkeys(r["controller"] for r in rows))
-    for ax, (key, low, high, goal, label) in zip(axes, panels, strict=True):
+    for ax, (key, low, high, goal, ylabel) in zip(axes, panels, strict=True):
         for i, name in enumerate(controllers):
+            color, style = (f"C{i}", "-") if name != REFERENCE else ("0.5", "--")
+            for r in rows:  # never locked on any seed: an x at the top
+                if r["controller"] == name and r[key] is None:
+                    ax.plot(
+                        r["rate_hz"], 0.97, "x", color=color, transform=ax.get_xaxis_transform()
+                    )
             mine = sorted(
                 (r for r in rows if r["controller"] == name and r[key] is not None),
                 key=lambda r: r["rate_hz"],
             )
             if not mine:
                 continue
-            color, style = (f"C{i}", "-") if name != REFERENCE else ("0.5", "--")
             x = np.array([r["rate_hz"] for r in mine])
             y = np.array([r[key] for r in mine])
             err = np.array([[r[key] - r[low], r[high] - r[key]] for r in mine]).T
-            label = name if name != REFERENCE else f"{name} (true errors known: reference)"
-            ax.errorbar(x, y, yerr=err, color=color, ls=style, lw=1.2, capsize=3, label=label)
+            name_shown = name if name != REFERENCE else f"{name} (true errors known: reference)"
+            ax.errorbar(x, y, yerr=err, color=color, ls=style, lw=1.2, capsize=3, label=name_shown)
             capped = np.array([r["steps_per_command"] > 1 for r in mine])
             ax.plot(x[~capped], y[~capped], "o", color=color)
             ax.plot(x[capped], y[capped], "o", mfc="white", color=color)
@@ -220,11 +225,15 @@ def figure(rows: list[dict[str, Any]], path: Path, title: str) -> None:
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("loop rate, Hz")
-        ax.set_ylabel(label)
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3, which="both")
-    if axes[0].get_legend_handles_labels()[0]:
-        axes[0].legend(fontsize=8)
-    fig.suptitle(title + ";\nopen markers: the controller's compute caps its rate", fontsize=9)
+    if axes[1].get_legend_handles_labels()[0]:
+        axes[1].legend(fontsize=7, loc="center right")
+    fig.suptitle(
+        title + ";\nopen markers: the controller's compute caps its rate; x at the top: never "
+        "locked on any seed",
+        fontsize=9,
+    )
     save_figure(fig, path)
     print(f"wrote {path}", flush=True)
 
