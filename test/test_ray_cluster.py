@@ -128,14 +128,10 @@ def test_smoke_runs_on_both_nodes_and_a_killed_node_costs_a_retry(cluster, hosts
     assert f"{len(RUNS)} already stored" in again.stdout and "start " not in again.stdout
 
 
-@pytest.mark.xfail(
-    reason="since ops_contract and ops_experiments ship to the node, its failure reads otherwise; "
-    "under investigation",
-    strict=False,
-)
 def test_a_node_that_cannot_import_is_reported_and_avoided(cluster, hosts, procs, tmp_path):
-    """Node B lacks gymnasium: the task cannot even import there. Ray's error reaches the
-    output and the run's log, and the retry goes to A."""
+    """Node B lacks gymnasium (its metadata says otherwise, so the version check passes): the
+    run's worker fails to import there. The cause reaches the output and the run's log, and
+    the retry goes to A."""
     cluster.start_head()
     cluster.start_worker(without="gymnasium")
     out = tmp_path / "out"
@@ -144,16 +140,17 @@ def test_a_node_that_cannot_import_is_reported_and_avoided(cluster, hosts, procs
     bench = hosts.a.start(procs, cmd, name="benchmark", env=cluster.driver_env())
     assert bench.wait_exit(300) == 0, bench.output
     text = bench.output
-    failed = re.findall(r"run (n2_\w+): Ray error on node 10\.231\.0\.2 \(\w+\): (\S+): (.*)", text)
+    assert_no_traceback(text)
+    failed = re.findall(r"run (n2_\w+) failed \(exit 1: (\w+Error): (.*)\); retry 1/3", text)
     assert failed, text
     for rid, kind, message in failed:
-        assert "Error" in kind and "gymnasium is not installed on this node" in message, text
+        assert kind == "ImportError" and "gymnasium is not installed on this node" in message
         log = (out / "logs" / f"{rid}.log").read_text()
-        assert kind in log and "gymnasium is not installed on this node" in log
+        assert f"{kind}: gymnasium is not installed on this node" in log
         assert log.rstrip().splitlines()[-1].startswith(f"[run {rid}] done"), log
         # One failure on B, then A: the failed node is avoided on the retry.
-        assert re.findall(r"attempt on node (\S+)", log)[-1] == "10.231.0.1", log
-        assert text.count(f"run {rid}: Ray error on node") == 1, text
+        attempts = re.findall(r"attempt on node (\S+)", log)
+        assert attempts == ["10.231.0.2", "10.231.0.1"], log
     assert {p.parent.name for p in out.glob("runs/*/run.json")} == {
         "n2_easy_spgd",
         "n2_easy_ppo_s0",

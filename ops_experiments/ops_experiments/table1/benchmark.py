@@ -26,6 +26,7 @@ SIGINT (Ctrl-C) or SIGTERM stops every run in progress, each saving its model, a
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -175,6 +176,19 @@ class Progress:
         )
 
 
+_ERROR_LINE = re.compile(r"^(\w+(?:\.\w+)*(?:Error|Exception|Interrupt)\b.*)$", re.M)
+
+
+def last_error(log: Path) -> str | None:
+    """The last exception line of a run's log (``ImportError: ...``), so that a failure's
+    cause is on the benchmark's own output and not only in the log."""
+    try:
+        found = _ERROR_LINE.findall(log.read_text(errors="replace"))
+    except OSError:
+        return None
+    return found[-1].strip()[:200] if found else None
+
+
 def _hms(s: float) -> str:
     s = int(s)
     return f"{s // 3600}h{(s % 3600) // 60:02d}m{s % 60:02d}s"
@@ -302,15 +316,22 @@ class _Scheduler:
             # had trained is in its work directory).
             self.attempts[rid] = self.attempts.get(rid, 0) + 1
             self.retry_at[rid] = time.monotonic() + args.retry_delay
+            cause = last_error(log)
             print(
-                f"[benchmark] run {rid} failed (exit {code}); retry {self.attempts[rid]}/"
-                f"{args.retries} in {args.retry_delay:.0f} s; see {log}",
+                f"[benchmark] run {rid} failed (exit {code}{': ' + cause if cause else ''}); "
+                f"retry {self.attempts[rid]}/{args.retries} in {args.retry_delay:.0f} s; "
+                f"see {log}",
                 file=sys.stderr,
                 flush=True,
             )
         else:
             self.failed.append(rid)
-            print(f"[benchmark] FAILED {rid} (exit {code}); see {log}", file=sys.stderr, flush=True)
+            cause = last_error(log)
+            print(
+                f"[benchmark] FAILED {rid} (exit {code}{': ' + cause if cause else ''}); see {log}",
+                file=sys.stderr,
+                flush=True,
+            )
 
     def _status(self) -> None:
         remaining = self.queue + [self.by_id[r] for r in _running_ids(self.pool)]

@@ -10,7 +10,8 @@ in ``OUT`` atomically. A run that stops (Ctrl-C of the benchmark) or fails retur
 directory, which the driver keeps in ``OUT/work/<id>/`` and sends with the next attempt, so the
 run resumes where it stopped.
 
-Errors reach the user: a task that fails outside the worker (cannot import, runtime environment,
+Errors reach the user: a run whose worker fails is named with the last exception of its log
+(``ImportError: ...``); a task that fails outside the worker (cannot import, runtime environment,
 node lost, worker killed) is reported with Ray's error type and message on stderr and in the
 run's log, and the node it failed on is avoided on the retry (a soft affinity to a live node the
 run has not failed on: it waits for a CPU there, and goes anywhere if that node leaves). Runs go
