@@ -106,3 +106,30 @@ def test_an_eighty_line_function_is_allowed(tmp_path):
     path = tmp_path / "ok.py"
     path.write_text("def f():\n" + "    x = 1\n" * 78 + "    return x\n")
     assert violations(path, tmp_path) == []
+
+
+def duplicate_test_modules(root: Path = ROOT) -> list[str]:
+    """Test modules that share a file name across the suite's folders: pytest imports them by
+    their base name (the folders are not packages), so the second fails to collect."""
+    by_name: dict[str, list[str]] = {}
+    for path in sorted(root.rglob("test_*.py")):
+        rel = path.relative_to(root)
+        if SKIPPED.intersection(rel.parts):
+            continue
+        by_name.setdefault(path.name, []).append(str(rel))
+    return [f"{name}: {', '.join(paths)}" for name, paths in by_name.items() if len(paths) > 1]
+
+
+def test_test_module_names_are_unique():
+    assert duplicate_test_modules() == []
+
+
+def test_a_planted_duplicate_test_module_is_named(tmp_path):
+    for folder in ("pkg_a/test", "pkg_b/test"):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "test_same.py").write_text("def test_x():\n    pass\n")
+    (tmp_path / "build" / "pkg_a").mkdir(parents=True)
+    (tmp_path / "build" / "pkg_a" / "test_same.py").write_text("")
+    assert duplicate_test_modules(tmp_path) == [
+        "test_same.py: pkg_a/test/test_same.py, pkg_b/test/test_same.py"
+    ]

@@ -2,10 +2,9 @@
 
 The physics, the tracker's fits and the policies' numpy work are small matrix products: a second
 BLAS thread gains nothing there, and on a busy machine (a node beside another node, a training
-beside a rig) an OpenBLAS thread that waits for a core stalls the product it belongs to. Measured
-(`ops-bench tracker-compute --busy 2`, docs/benchmarks.md): with two busy processes on a
-2-core machine the tracker's knot test took 196 ms with OpenBLAS's default of one thread per core,
-8.7 ms with one thread.
+beside a rig) an OpenBLAS thread that waits for a core stalls the product it belongs to: with
+two busy processes on a 2-core machine the tracker's slowest readings took about three times as
+long with one BLAS thread per core as with one thread (docs/results/tracker/notes.md).
 Every node (``run_node``) and the ``train`` / ``evaluate`` CLIs call :func:`limit_blas_threads`
 first; a user who sets ``OPENBLAS_NUM_THREADS`` (or ``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS``)
 keeps that choice. The policy node runs torch's small networks on one thread likewise

@@ -30,7 +30,6 @@ def test_every_module_has_a_subcommand_or_is_a_helper():
     modules = {m.name for m in pkgutil.iter_modules([str(PACKAGE)])}
     tools = {t.module for t in [*cli.TOOLS.values(), *cli.FIGURES.values()] if t.module}
     helpers = {"cli", "__main__", "docs", "hosts", "observer", "processes", "ray_cluster"}
-    helpers |= {"tracker_knots"}  # tracker-compute's loop
     helpers |= {"rate_sweep_report", "soak_report"}  # their figures and pages
     assert tools <= modules
     assert modules - tools == helpers
