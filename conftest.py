@@ -7,6 +7,12 @@ pid so that two test runs on one machine rarely meet.
 
 ``procs`` starts commands the way a user would (``ros2 run``) and stops every one of them (SIGINT,
 then SIGKILL) when the test ends; see ops_bench.processes (tools/ops_bench).
+
+Threads: the test process's own numpy work (the closed loops of the tracker and simulator tests)
+runs on one BLAS thread, as every node and CLI does (ops_contract.threads.limit_blas_threads;
+the processes a test starts limit themselves). ``make test`` already runs one worker per core; a
+BLAS thread pool per worker on top of that waits for a core that another process holds (60
+readings of a tracker in a global search on the loaded 2-core machine: 56 s wall, 7 s on one).
 """
 
 from __future__ import annotations
@@ -16,6 +22,9 @@ import os
 
 import pytest
 from ops_bench.processes import ProcessGroup
+from ops_contract.threads import limit_blas_threads
+
+limit_blas_threads()  # (not the environment: what the tests start keeps its own choice)
 
 _domains = itertools.count()
 #: Domains 1..100 (0, the default, is left to whatever else runs on the machine), cut into one
