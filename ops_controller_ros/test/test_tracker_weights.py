@@ -44,22 +44,47 @@ def test_a_tracker_told_of_source_noise_holds_near_the_top():
     assert min(finals) >= 0.985, finals
 
 
-def _hold_with_power_from_the_trace(power_weight: float, gain: float, seed: int) -> float:
-    """Share of readings 100-400 >= 0.95 (the true P) in hard mode when, as on a rig node, the
-    slot energies read ``gain`` times high and the power is their sum of squares, clipped."""
+HELD_READINGS = 300  # readings 100-400
+
+
+def _held_with_power_from_the_trace(power_weight: float, gain: float, seed: int):
+    """Whether each of readings 100-400 is >= 0.95 (the true P), one a ``next``, in hard mode
+    when, as on a rig node, the slot energies read ``gain`` times high and the power is their sum
+    of squares, clipped."""
     config = make_config(5, "hard", "test")
     sim = BatchedSimulation(config, 1, seed=seed)
     params = replace(TrackerParams(), power_weight=power_weight)
     tracker = PhaseTracker(config, params, seed=seed)
     sim.reset(seed=seed)
-    held = []
     for step in range(400):
         res = sim.step_setpoints(next_command(tracker)[None])
         energies = gain * res.pulse_energies[0]
         tracker.observe(min(float(np.sum(energies**2)), 1.0), energies)
         if step >= 100:
-            held.append(float(res.power[0]) >= 0.95)
-    return float(np.mean(held))
+            yield float(res.power[0]) >= 0.95
+
+
+def _hold_with_power_from_the_trace(power_weight: float, gain: float, seed: int) -> float:
+    """Share of readings 100-400 >= 0.95 (the true P): see _held_with_power_from_the_trace."""
+    return float(np.mean(list(_held_with_power_from_the_trace(power_weight, gain, seed))))
+
+
+def _holds_at_most(runs: list, decided) -> list[float]:
+    """Upper bounds of the runs' shares held (each run: readings held so far plus every reading
+    it has left, over 300), the runs stepped together a reading at a time until
+    ``decided(bounds)``: a run's share can only be lower than its bound, so a claim that its
+    shares are low enough holds once it holds for the bounds. Undecided, the runs go to their end
+    and the bounds are the shares themselves."""
+    held = [0] * len(runs)
+    left = [HELD_READINGS] * len(runs)
+    while True:
+        bounds = [(h + n) / HELD_READINGS for h, n in zip(held, left, strict=True)]
+        if decided(bounds) or not any(left):
+            return bounds
+        for i, run in enumerate(runs):
+            if left[i]:
+                held[i] += next(run)
+                left[i] -= 1
 
 
 def test_a_power_computed_from_the_trace_is_weighed_out():
@@ -69,11 +94,22 @@ def test_a_power_computed_from_the_trace_is_weighed_out():
     detector noisy (the misfit of the power, new in every reading as the excursions move, counts
     as noise there), 4 % costs little (seeds 71-74: weighed 1 0.98 / 1.00 / 0.59 / 1.00 on one
     CPU, 1.00 / 1.00 / 0.96 / 1.00 on another), so the test takes a full scale 8 % low: weighed 1
-    1.00 / 0.80 / 0.05 / 0.94 (seeds 75-78: 1.00 / 1.00 / 0.98 / 1.00), weighed 0 1.00 each."""
+    1.00 / 0.80 / 0.05 / 0.94 (seeds 75-78: 1.00 / 1.00 / 0.98 / 1.00), weighed 0 1.00 each.
+    The weighed-in runs stop once their upper bounds decide both comparisons (_holds_at_most;
+    the messages then show the bounds): here about reading 175 of 400, at 60 readings lost by
+    one run, in 40 % of the time."""
     assert TrackerParams().power_weight == 1.0  # a simulator's detector: weighed in full
     seeds = (71, 72, 73, 74)
     weighed_out = [_hold_with_power_from_the_trace(0.0, 1.08, seed) for seed in seeds]
-    weighed_in = [_hold_with_power_from_the_trace(1.0, 1.08, seed) for seed in seeds]
     assert min(weighed_out) >= 0.9, weighed_out
+
+    def decided(weighed_in: list[float]) -> bool:
+        return (
+            np.mean(weighed_out) >= np.mean(weighed_in) + 0.05
+            and min(weighed_out) >= min(weighed_in) + 0.2
+        )
+
+    runs = [_held_with_power_from_the_trace(1.0, 1.08, seed) for seed in seeds]
+    weighed_in = _holds_at_most(runs, decided)
     assert np.mean(weighed_out) >= np.mean(weighed_in) + 0.05, (weighed_out, weighed_in)
     assert min(weighed_out) >= min(weighed_in) + 0.2, (weighed_out, weighed_in)
