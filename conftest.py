@@ -13,16 +13,19 @@ runs on one BLAS thread, as every node and CLI does (ops_contract.threads.limit_
 the processes a test starts limit themselves). ``make test`` already runs one worker per core; a
 BLAS thread pool per worker on top of that waits for a core that another process holds (60
 readings of a tracker in a global search on the loaded 2-core machine: 56 s wall, 7 s on one).
+torch, once a test has imported it, runs on one thread likewise, as the policy node does
+(test_shipped_models alone: 85 s with torch's thread per core, 18 s on one).
 """
 
 from __future__ import annotations
 
 import itertools
 import os
+import sys
 
 import pytest
 from ops_bench.processes import ProcessGroup
-from ops_contract.threads import limit_blas_threads
+from ops_contract.threads import THREAD_VARIABLES, limit_blas_threads
 
 limit_blas_threads()  # (not the environment: what the tests start keeps its own choice)
 
@@ -52,6 +55,16 @@ def ros_domain():
             os.environ.pop(k, None)
         else:
             os.environ[k] = v
+
+
+@pytest.fixture(autouse=True)
+def _torch_on_one_thread():
+    """torch on one thread in this process (if imported: not imported for it), unless the user
+    set a thread count."""
+    torch = sys.modules.get("torch")
+    user_set = any(os.environ.get(name) for name in THREAD_VARIABLES)
+    if torch is not None and not user_set and torch.get_num_threads() != 1:
+        torch.set_num_threads(1)
 
 
 @pytest.fixture
