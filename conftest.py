@@ -13,12 +13,14 @@ runs on one BLAS thread, as every node and CLI does (ops_contract.threads.limit_
 the processes a test starts limit themselves). ``make test`` already runs one worker per core; a
 BLAS thread pool per worker on top of that waits for a core that another process holds (60
 readings of a tracker in a global search on the loaded 2-core machine: 56 s wall, 7 s on one).
-torch, once a test has imported it, runs on one thread likewise, as the policy node does
+torch, when the test process imports it, runs on one thread likewise, as the policy node does
 (test_shipped_models alone: 85 s with torch's thread per core, 18 s on one).
 """
 
 from __future__ import annotations
 
+import importlib.abc
+import importlib.util
 import itertools
 import os
 import sys
@@ -57,14 +59,33 @@ def ros_domain():
             os.environ[k] = v
 
 
-@pytest.fixture(autouse=True)
-def _torch_on_one_thread():
-    """torch on one thread in this process (if imported: not imported for it), unless the user
-    set a thread count."""
-    torch = sys.modules.get("torch")
-    user_set = any(os.environ.get(name) for name in THREAD_VARIABLES)
-    if torch is not None and not user_set and torch.get_num_threads() != 1:
-        torch.set_num_threads(1)
+class _TorchOnOneThread(importlib.abc.MetaPathFinder):
+    """torch, when this process imports it, on one thread (as the policy node runs it), unless
+    the user set a thread count."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "torch":
+            return None
+        sys.meta_path.remove(self)  # (once; the finders after it find torch)
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None:
+            return spec
+        exec_module = spec.loader.exec_module
+
+        def exec_then_limit(module):
+            exec_module(module)
+            if not any(os.environ.get(v) for v in THREAD_VARIABLES):
+                module.set_num_threads(1)
+
+        spec.loader.exec_module = exec_then_limit
+        return spec
+
+
+if "torch" in sys.modules:
+    if not any(os.environ.get(v) for v in THREAD_VARIABLES):
+        sys.modules["torch"].set_num_threads(1)
+else:
+    sys.meta_path.insert(0, _TorchOnOneThread())
 
 
 @pytest.fixture
