@@ -19,15 +19,13 @@ torch, when the test process imports it, runs on one thread likewise, as the pol
 
 from __future__ import annotations
 
-import importlib.abc
-import importlib.util
 import itertools
 import os
-import sys
 
 import pytest
 from ops_bench.processes import ProcessGroup
-from ops_contract.threads import THREAD_VARIABLES, limit_blas_threads
+from ops_contract.import_hooks import after_import
+from ops_contract.threads import limit_blas_threads, limit_torch_threads
 
 limit_blas_threads()  # (not the environment: what the tests start keeps its own choice)
 
@@ -59,33 +57,9 @@ def ros_domain():
             os.environ[k] = v
 
 
-class _TorchOnOneThread(importlib.abc.MetaPathFinder):
-    """torch, when this process imports it, on one thread (as the policy node runs it), unless
-    the user set a thread count."""
-
-    def find_spec(self, name, path=None, target=None):
-        if name != "torch":
-            return None
-        sys.meta_path.remove(self)  # (once; the finders after it find torch)
-        spec = importlib.util.find_spec(name)
-        if spec is None or spec.loader is None:
-            return spec
-        exec_module = spec.loader.exec_module
-
-        def exec_then_limit(module):
-            exec_module(module)
-            if not any(os.environ.get(v) for v in THREAD_VARIABLES):
-                module.set_num_threads(1)
-
-        spec.loader.exec_module = exec_then_limit
-        return spec
-
-
-if "torch" in sys.modules:
-    if not any(os.environ.get(v) for v in THREAD_VARIABLES):
-        sys.modules["torch"].set_num_threads(1)
-else:
-    sys.meta_path.insert(0, _TorchOnOneThread())
+# torch, when this process imports it, on one thread (as the policy node runs it), unless the
+# user set a thread count.
+after_import("torch", lambda _torch: limit_torch_threads())
 
 
 @pytest.fixture

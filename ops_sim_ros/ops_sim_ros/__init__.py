@@ -9,9 +9,7 @@ that needs only the ROS helpers (a controller node: ``ops_contract.ros_interface
 
 from __future__ import annotations
 
-import importlib.abc
-import importlib.util
-import sys
+from ops_contract.import_hooks import after_import
 
 ENV_ID = "ops_sim_ros/PulseStacking-v0"
 __all__ = ["ENV_ID", "OpsEnv"]
@@ -25,34 +23,11 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _register() -> None:
+def _register(_gymnasium=None) -> None:
     from gymnasium.envs.registration import register, registry
 
     if ENV_ID not in registry:
         register(id=ENV_ID, entry_point="ops_sim_ros.env:OpsEnv")
 
 
-class _RegisterOnGymnasiumImport(importlib.abc.MetaPathFinder):
-    """Registers the id right after ``gymnasium`` is imported (then leaves sys.meta_path)."""
-
-    def find_spec(self, fullname, path=None, target=None):
-        if fullname != "gymnasium":
-            return None
-        sys.meta_path.remove(self)
-        spec = importlib.util.find_spec(fullname)
-        if spec is None or spec.loader is None:
-            return spec
-        exec_module = spec.loader.exec_module
-
-        def exec_then_register(module):
-            exec_module(module)
-            _register()
-
-        spec.loader.exec_module = exec_then_register
-        return spec
-
-
-if "gymnasium" in sys.modules:
-    _register()
-elif not any(isinstance(f, _RegisterOnGymnasiumImport) for f in sys.meta_path):
-    sys.meta_path.insert(0, _RegisterOnGymnasiumImport())
+after_import("gymnasium", _register)

@@ -21,18 +21,13 @@ import sys
 import tempfile
 from pathlib import Path
 
+from ops_experiments.table1.ray_pool import PACKAGES  # the packages a task ships; none on B
+
 PORT = 6379
 #: Variables that would put the project on a node's path (setup.bash sets them).
 PROJECT_VARS = ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "CMAKE_PREFIX_PATH")
 PROBE = (
     "import importlib.util as u, json; print(json.dumps([bool(u.find_spec(p)) for p in {pkgs!r}]))"
-)
-PACKAGES = (
-    "ops_contract",
-    "ops_sim_ros",
-    "ops_controller_ros",
-    "ops_gym_bridge",
-    "ops_experiments",
 )
 
 
