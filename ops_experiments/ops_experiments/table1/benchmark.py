@@ -189,6 +189,12 @@ def last_error(log: Path) -> str | None:
     return found[-1].strip()[:200] if found else None
 
 
+def failure_text(code: int, log: Path) -> str:
+    """``exit N`` and, where the log has one, its last exception: ``exit 1: ImportError: ...``."""
+    cause = last_error(log)
+    return f"exit {code}: {cause}" if cause else f"exit {code}"
+
+
 def _hms(s: float) -> str:
     s = int(s)
     return f"{s // 3600}h{(s % 3600) // 60:02d}m{s % 60:02d}s"
@@ -316,9 +322,8 @@ class _Scheduler:
             # had trained is in its work directory).
             self.attempts[rid] = self.attempts.get(rid, 0) + 1
             self.retry_at[rid] = time.monotonic() + args.retry_delay
-            cause = last_error(log)
             print(
-                f"[benchmark] run {rid} failed (exit {code}{': ' + cause if cause else ''}); "
+                f"[benchmark] run {rid} failed ({failure_text(code, log)}); "
                 f"retry {self.attempts[rid]}/{args.retries} in {args.retry_delay:.0f} s; "
                 f"see {log}",
                 file=sys.stderr,
@@ -326,9 +331,8 @@ class _Scheduler:
             )
         else:
             self.failed.append(rid)
-            cause = last_error(log)
             print(
-                f"[benchmark] FAILED {rid} (exit {code}{': ' + cause if cause else ''}); see {log}",
+                f"[benchmark] FAILED {rid} ({failure_text(code, log)}); see {log}",
                 file=sys.stderr,
                 flush=True,
             )
