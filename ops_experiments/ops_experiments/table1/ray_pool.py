@@ -2,9 +2,9 @@
 
 What a node needs: Ray and the driver's Python version with the third-party packages a run uses
 (:data:`WORKER_DISTRIBUTIONS`) at the driver's versions; a task checks them first and fails
-with a line naming what differs. Nothing of the project: the three packages travel with every
-task in its ``runtime_env`` (``py_modules``), and nothing is read from or written to a shared
-file system. A task runs the worker (:mod:`.bench_worker`) in a temporary
+with a line naming what differs. Nothing of the project: its packages (:data:`PACKAGES`)
+travel with every task in its ``runtime_env`` (``py_modules``), and nothing is read from or
+written to a shared file system. A task runs the worker (:mod:`.bench_worker`) in a temporary
 directory of its node and returns the finished run (packed) with its log; the driver stores it
 in ``OUT`` atomically. A run that stops (Ctrl-C of the benchmark) or fails returns its work
 directory, which the driver keeps in ``OUT/work/<id>/`` and sends with the next attempt, so the
