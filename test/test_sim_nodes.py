@@ -182,7 +182,7 @@ def test_bad_commands_are_rejected_and_the_state_kept(procs, observer):
         ("realism:=garage", ["realism", "ideal, lab", "garage"]),
         ("time_base:=minutes", ["time_base", "step, seconds", "minutes"]),
         ("step_s:=0.0", ["step_s", "[1e-05, 10.0]"]),
-        ("vibration:=loud", ["vibration", "none, lab", "loud"]),
+        ("vibration:=loud", ["vibration", "none, lab, open", "loud"]),
     ],
 )
 def test_bad_parameters_stop_the_sim_before_it_spins(procs, param, words):
@@ -223,7 +223,7 @@ def test_physical_time_changes_live_and_bad_values_are_refused(procs, observer):
     for name, value, words in (
         ("time_base", "minutes", ["time_base", "step, seconds"]),
         ("step_s", "0.0", ["step_s", "[1e-05, 10.0]"]),
-        ("vibration", "loud", ["vibration", "none, lab"]),
+        ("vibration", "loud", ["vibration", "none, lab, open"]),
     ):
         bad = run_ros2("param", "set", "/ops_sim", name, value)
         for w in words:

@@ -24,8 +24,8 @@ REALISMS = ("ideal", "lab")
 #: What a control step is (docs/physics.md, "Physical time"): ``step``, the paper's noise per
 #: step whatever the step lasts; ``seconds``, the noise of ``step_s`` seconds of physical time.
 TIME_BASES = ("step", "seconds")
-#: The delay lines' vibration (ops_sim_ros.vibration): none, or a lab's lines and 1/f floor.
-VIBRATIONS = ("none", "lab")
+#: The delay lines' vibration (ops_sim_ros.vibration): none, or a preset of lines and a floor.
+VIBRATIONS = ("none", "lab", "open")
 #: The paper's control step (appendix C: ~0.1 s per interaction of a real stacker): under
 #: ``time_base`` seconds, the figures counted per step are per this much physical time.
 REFERENCE_STEP_S = 0.1
@@ -184,7 +184,7 @@ class OpsConfig:
     # --- physical time (docs/physics.md, "Physical time and vibration")
     time_base: str = "step"  # "step": noise per step (the paper's); "seconds": per step_s of time
     step_s: float = REFERENCE_STEP_S  # the control period, s (drift knots, vibration's clock)
-    vibration: str = "none"  # "none", or "lab": acoustic lines and a 1/f floor (ops_sim_ros)
+    vibration: str = "none"  # "none", or a preset of ops_sim_ros.vibration: "lab", "open"
 
     # ----------------------------------------------------------------- derived quantities
     @property

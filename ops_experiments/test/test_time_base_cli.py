@@ -25,7 +25,7 @@ BAD = [
     ("step_s=nan", "step_s must be a finite number from 1e-05 to 10.0"),
     ("step_s=-0.01", "step_s must be from 1e-05 to 10.0"),
     ("step_s=fast", "step_s must be a number (got 'fast')"),
-    ("vibration=loud", "vibration must be one of none, lab (got 'loud')"),
+    ("vibration=loud", "vibration must be one of none, lab, open (got 'loud')"),
 ]
 
 

@@ -157,7 +157,8 @@ PARAMS = [
     ParamSpec(
         "vibration",
         "none",
-        "the delay lines' vibration in physical time: none, or lab (acoustic lines, 1/f floor)",
+        "the delay lines' vibration in physical time: none, lab (a floated table under an "
+        "enclosure) or open (the same table open to the room)",
         choices=VIBRATIONS,
     ),
 ]

@@ -2,13 +2,13 @@
 "Physical time and vibration").
 
 A preset gives acoustic and building *lines* (a frequency and an rms each, fs) and a *floor*
-whose power spectral density falls as 1/f over a band (its rms over the whole band, fs). Each
-delay line of each environment vibrates as a sum of sinusoids at fixed frequencies with random
-phases (the spectral-representation method): one per line, the line's frequency within
+whose power spectral density falls as 1/f^slope over a band (its rms over the whole band, fs).
+Each delay line of each environment vibrates as a sum of sinusoids at fixed frequencies with
+random phases (the spectral-representation method): one per line, the line's frequency within
 ``line_spread`` of its nominal one per environment (two labs' fans do not turn at the same
-speed), and one per log-spaced band of the floor, at a random frequency inside its band, all
-bands of equal variance (equal variance per ln f is the 1/f spectrum). The offset is a function
-of physical time, evaluated at t = steps x ``step_s``: a loop of any rate samples the same
+speed), and one per log-spaced band of the floor, at a random frequency inside its band, with
+the variance the spectrum puts in that band (equal in every band for slope 1). The offset is a
+function of physical time, evaluated at t = steps x ``step_s``: a loop of any rate samples the same
 vibration, and a slow loop sees its lines aliased to low frequencies, as a real one does.
 Deterministic per generator; pure numpy, batched over (environments, stages).
 """
@@ -27,8 +27,9 @@ class VibrationPreset:
     """The figures of one vibration preset (delays in fs rms, frequencies in Hz)."""
 
     lines: tuple[tuple[float, float], ...]  # (nominal frequency, rms) of each line
-    floor_rms_fs: float  # rms of the 1/f floor over floor_band_hz
+    floor_rms_fs: float  # rms of the floor over floor_band_hz
     floor_band_hz: tuple[float, float]
+    floor_slope: float = 1.0  # the floor's power spectral density falls as 1/f**floor_slope
     floor_components: int = 24  # sinusoids of the floor: one per log-spaced band
     line_spread: float = 0.01  # each env's line within +- this fraction of its nominal frequency
 
@@ -37,31 +38,54 @@ class VibrationPreset:
         """The total rms of one delay line's vibration."""
         return float(np.sqrt(sum(r * r for _, r in self.lines) + self.floor_rms_fs**2))
 
+    def floor_share(self, low_hz, high_hz):
+        """The share of the floor's variance in [low_hz, high_hz) (arrays broadcast): the
+        integral of f**-floor_slope over the band's overlap with floor_band_hz, normalized."""
+        lo, hi = self.floor_band_hz
+        a = np.clip(low_hz, lo, hi)
+        b = np.clip(high_hz, lo, hi)
+        if self.floor_slope == 1.0:
+            return np.maximum(np.log(b / a), 0.0) / np.log(hi / lo)
+        e = 1.0 - self.floor_slope  # the antiderivative of f**-slope is f**e / e
+        return np.maximum((b**e - a**e) / (hi**e - lo**e), 0.0)
+
     def band_rms_fs(self, low_hz: float, high_hz: float) -> float:
         """The rms the preset puts in [low_hz, high_hz): the lines whose nominal frequency lies
-        there and the floor's share (its variance is spread evenly over ln f)."""
+        there and the floor's share."""
         var = sum(r * r for f, r in self.lines if low_hz <= f < high_hz)
-        lo, hi = np.log(self.floor_band_hz)
-        overlap = min(np.log(high_hz), hi) - max(np.log(low_hz), lo)
-        var += self.floor_rms_fs**2 * max(overlap, 0.0) / (hi - lo)
+        var += self.floor_rms_fs**2 * float(self.floor_share(low_hz, high_hz))
         return float(np.sqrt(var))
 
 
-#: The presets by name (``config.VIBRATIONS`` lists them with ``none``). ``lab``: a free-space
-#: stacker on a floated optical table in a building with air handling, about 0.066 fs (20 nm of
-#: path, 1/50 of the 1030 nm wavelength) rms per delay line; docs/physics.md gives each figure's
-#: source.
+#: The presets by name (``config.VIBRATIONS`` lists them with ``none``); docs/physics.md gives
+#: each figure's source.
+#:
+#: ``lab``: a free-space stacker on a floated optical table under an enclosure, in a building
+#: with air handling: 0.026 fs (8 nm of path, 1/130 of the 1030 nm wavelength) rms per delay
+#: line. The floated table passes little above its ~1.5 Hz resonance, so the floor falls as
+#: 1/f^2 (90 % of its variance below 10 Hz) and the acoustic lines are sub-nm.
+#:
+#: ``open``: the same table without an enclosure, its mounts driven by the room's sound:
+#: 0.066 fs (20 nm, 1/52 of the wavelength), a 1/f floor with a third of its variance above
+#: 100 Hz and lines several times louder; what a loop leaves then is set by its bandwidth.
 PRESETS = {
     "lab": VibrationPreset(
         lines=(
-            (14.6, 0.015),  # the floor's structural mode, left after the isolators
-            (29.5, 0.015),  # an air handler's fan or a pump motor (1770 rpm)
-            (120.0, 0.010),  # twice the 60 Hz mains (100 Hz on 50 Hz): transformer and motor hum
-            (230.0, 0.012),  # a mirror mount's resonance on its post, driven acoustically
-            (470.0, 0.006),  # a second mount resonance
+            (14.6, 0.006),  # the floor's structural mode, left after the isolators
+            (29.5, 0.005),  # an air handler's fan or a pump motor (1770 rpm)
+            (120.0, 0.002),  # twice the 60 Hz mains (100 Hz on 50 Hz): transformer and motor hum
+            (230.0, 0.002),  # a mirror mount's resonance on its post, driven acoustically
+            (470.0, 0.001),  # a second mount resonance
         ),
+        floor_rms_fs=0.025,
+        floor_band_hz=(1.0, 1000.0),
+        floor_slope=2.0,
+    ),
+    "open": VibrationPreset(
+        lines=((14.6, 0.015), (29.5, 0.015), (120.0, 0.010), (230.0, 0.012), (470.0, 0.006)),
         floor_rms_fs=0.06,
         floor_band_hz=(1.0, 1000.0),
+        floor_slope=1.0,
     ),
 }
 
@@ -80,8 +104,9 @@ class Vibration:
         floor_hz = np.exp(lo + width * (np.arange(k) + rng.random((*shape, k))))
         self.hz = np.concatenate([line_hz, floor_hz], axis=2)  # (B, N, M)
         self.phase = rng.random(self.hz.shape)  # cycles
-        rms = np.concatenate([[r for _, r in preset.lines], np.full(k, preset.floor_rms_fs)])
-        rms[nominal.size :] /= np.sqrt(k)
+        edges = np.exp(lo + width * np.arange(k + 1))
+        floor_rms = preset.floor_rms_fs * np.sqrt(preset.floor_share(edges[:-1], edges[1:]))
+        rms = np.concatenate([[r for _, r in preset.lines], floor_rms])
         self.amplitude = np.sqrt(2.0) * rms  # (M,) fs
         self._amplitude32 = self.amplitude.astype(np.float32)
         self._cycles = np.empty_like(self.hz)

@@ -57,7 +57,7 @@ def test_unbounded_noise_at_start_is_a_parameter_error(make_node):
         ("time_base:=minutes", ["time_base", "one of step, seconds", "minutes"]),
         ("step_s:=0.0", ["step_s", "-1 or float in [1e-05, 10.0]"]),
         ("step_s:=20.0", ["step_s", "-1 or float in [1e-05, 10.0]"]),
-        ("vibration:=loud", ["vibration", "one of none, lab", "loud"]),
+        ("vibration:=loud", ["vibration", "one of none, lab, open", "loud"]),
     ],
 )
 def test_bad_physical_time_at_start_is_a_parameter_error(make_node, param, words):
@@ -77,7 +77,7 @@ def test_bad_physical_time_at_runtime_is_refused_and_the_config_kept(make_node):
         ("time_base", "minutes", ["time_base", "one of step, seconds"]),
         ("step_s", 1e-6, ["step_s", "[1e-05, 10.0]"]),
         ("step_s", float("nan"), ["step_s"]),
-        ("vibration", "loud", ["vibration", "one of none, lab"]),
+        ("vibration", "loud", ["vibration", "one of none, lab, open"]),
         ("rate_hz", 20000.0, ["rate_hz", "10000.0"]),  # (rclpy says the range its own way)
     ):
         result = node.set_parameters([Parameter(name, value=value)])[0]

@@ -120,19 +120,25 @@ def _sampled(preset, rate=5000.0, seconds=12.0, envs=8, stage=5, seed=7):
     )
 
 
-def test_the_floor_holds_equal_variance_in_equal_log_bands():
-    """The 1/f floor alone, sampled at 2.5 kHz for 40 s (40 periods of its slowest part): each
-    quarter of a decade from 1 Hz to 1 kHz holds 1/12 of its variance (a 1/f spectrum), within
-    10 % of the rms over 40 lines (one line's band, of two or three sinusoids, can lose a
-    quarter of it when two of them lie closer than 1/40 Hz at the band's edge)."""
-    lab = PRESETS["lab"]
-    floor = VibrationPreset(lines=(), floor_rms_fs=lab.floor_rms_fs, floor_band_hz=(1.0, 1000.0))
+@pytest.mark.parametrize("slope", [1.0, 2.0])
+def test_the_floor_puts_its_slopes_share_in_each_log_band(slope):
+    """The floor alone, sampled at 2.5 kHz for 40 s (40 periods of its slowest part): each
+    quarter of a decade from 1 Hz to 1 kHz holds the share of the variance that a 1/f^slope
+    spectrum puts there (1/12 each for 1/f), within 10 % of the rms over 40 lines (one line's
+    band, of two or three sinusoids, can lose a quarter of it when two of them lie closer than
+    1/40 Hz at the band's edge)."""
+    floor = VibrationPreset(
+        lines=(), floor_rms_fs=0.05, floor_band_hz=(1.0, 1000.0), floor_slope=slope
+    )
     edges = 10.0 ** np.arange(0.0, 3.01, 0.25)
     series = _sampled(floor, rate=2500.0, seconds=40.0)
     measured = _band_rms(series, 2500.0, list(itertools.pairwise(edges)))
     pooled = np.sqrt((measured**2).mean(axis=1))
-    np.testing.assert_allclose(pooled, lab.floor_rms_fs / np.sqrt(12.0), rtol=0.1)
-    assert floor.band_rms_fs(10.0, 100.0) == pytest.approx(lab.floor_rms_fs / np.sqrt(3.0))
+    expected = [floor.band_rms_fs(lo, hi) for lo, hi in itertools.pairwise(edges)]
+    np.testing.assert_allclose(pooled, expected, rtol=0.1)
+    share = 1.0 / 3.0 if slope == 1.0 else (0.1 - 0.01) / (1.0 - 0.001)
+    assert floor.band_rms_fs(10.0, 100.0) == pytest.approx(0.05 * np.sqrt(share))
+    assert floor.band_rms_fs(0.1, 1e4) == pytest.approx(0.05)  # all of it lies in its band
 
 
 def test_each_line_has_its_rms_at_its_frequency():
@@ -145,15 +151,28 @@ def test_each_line_has_its_rms_at_its_frequency():
     assert series.std() == pytest.approx(lines.rms_fs, rel=0.05)
 
 
-def test_lab_vibration_has_the_presets_rms_in_each_decade():
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_a_preset_has_its_rms_in_each_decade(name):
     """Lines and floor together: each decade's rms over 40 lines is the preset's."""
-    preset = PRESETS["lab"]
+    preset = PRESETS[name]
     decades = [(1.0, 10.0), (10.0, 100.0), (100.0, 1000.0)]
     series = _sampled(preset, seed=8)
     for (lo, hi), got in zip(decades, _band_rms(series, 5000.0, decades), strict=True):
         assert np.sqrt(np.mean(got**2)) == pytest.approx(preset.band_rms_fs(lo, hi), rel=0.1)
     assert series.std() == pytest.approx(preset.rms_fs, rel=0.1)
-    assert 0.05 < preset.rms_fs < 0.1  # 15-30 nm of path: tens of nm, unstabilized
+
+
+def test_the_enclosed_lab_is_quiet_above_a_fast_loops_bandwidth():
+    """``lab`` (an enclosed, floated table): 5-12 nm of path in all, most of it below 10 Hz, and
+    under 2 nm above 100 Hz, where no loop slower than a kHz follows it; ``open`` is louder at
+    every frequency, tens of nm, a third of its floor above 100 Hz."""
+    lab, open_ = PRESETS["lab"], PRESETS["open"]
+    assert 0.017 < lab.rms_fs < 0.04
+    assert lab.band_rms_fs(1.0, 10.0) > 2 * lab.band_rms_fs(10.0, 1e4)
+    assert lab.band_rms_fs(100.0, 1e4) < 0.0067
+    assert 0.05 < open_.rms_fs < 0.1
+    for lo, hi in ((1.0, 10.0), (10.0, 100.0), (100.0, 1e4)):
+        assert open_.band_rms_fs(lo, hi) > lab.band_rms_fs(lo, hi)
 
 
 def test_a_slow_loop_samples_the_same_vibration_a_fast_one_does():

@@ -3,8 +3,8 @@ index.md; docs/physics.md, "Physical time and vibration").
 
 (a) time_base seconds at step_s 0.1 against step: the same episodes, array by array;
 (b) the walk's variance and the hard mode's drift per simulated second at step_s 0.1 .. 0.001;
-(c) the lab vibration's rms per decade and per line, sampled at 5 kHz, against the preset;
-(d) P_N / P_max with the set-points held at the optimum under the lab vibration (what a loop
+(c) each vibration preset's rms per decade, sampled at 5 kHz, against the preset;
+(d) P_N / P_max with the set-points held at the optimum under each preset (what a loop
     too slow to follow it keeps at best);
 (e) the cost: DelayNoise.sample and batched env-steps/s with and without the vibration.
 
@@ -96,9 +96,9 @@ def per_second(steps_s=(0.1, 0.01, 0.001), envs=4000) -> list[dict]:
     return rows
 
 
-def vibration_bands(rate_hz=5000.0, seconds=12.0) -> dict:
-    """(c) the lab preset sampled on 40 lines: rms per decade and in total, measured and set."""
-    preset = PRESETS["lab"]
+def vibration_bands(name: str, rate_hz=5000.0, seconds=12.0) -> dict:
+    """(c) preset ``name`` sampled on 40 lines: rms per decade and in total, measured and set."""
+    preset = PRESETS[name]
     vib = Vibration(preset, 8, 5, np.random.default_rng(8))
     x = np.stack([vib.at(i / rate_hz) for i in range(int(seconds * rate_hz))]).reshape(-1, 40)
     window = np.hanning(x.shape[0])[:, None]
@@ -120,14 +120,14 @@ def vibration_bands(rate_hz=5000.0, seconds=12.0) -> dict:
     return {"bands": rows, "sample_rms_fs": float(x.std()), "preset_rms_fs": preset.rms_fs}
 
 
-def held_optimum(stages=(1, 3, 5), envs=200, steps=300) -> list[dict]:
-    """(d) P_N / P_max at the optimum set-points, no walk: the vibration's cost alone."""
+def held_optimum(name: str, stages=(1, 3, 5), envs=200, steps=300) -> list[dict]:
+    """(d) P_N / P_max at the optimum set-points, no walk: preset ``name``'s cost alone."""
     rows = []
     for stage in stages:
         cfg = make_config(
             stage=stage,
             mode="easy",
-            vibration="lab",
+            vibration=name,
             jitter_sigma_cycles=0.0,
             initial_sigma_cycles=0.0,
         )
@@ -172,9 +172,40 @@ def speed(batch=1024, repeats=3) -> list[dict]:
     return rows
 
 
+def vibration_section(name: str, vib: dict, held: list[dict]) -> list[str]:
+    """The page's lines on one vibration preset: its bands, measured, and its cost held."""
+    lines = [
+        "",
+        f"## Vibration `{name}`",
+        "",
+        "40 delay lines sampled at 5 kHz for 12 s (Hann-windowed periodogram), rms over the "
+        f"lines; sample rms {vib['sample_rms_fs']:.4f} fs against the preset's "
+        f"{vib['preset_rms_fs']:.4f} fs ({vib['preset_rms_fs'] * 299.792458:.1f} nm of path).",
+        "",
+        "| band (Hz) | measured rms (fs) | preset (fs) |",
+        "|---|---|---|",
+    ]
+    for row in vib["bands"]:
+        lo, hi = row["band_hz"]
+        lines.append(f"| {lo:g}-{hi:g} | {row['measured_fs']:.4f} | {row['preset_fs']:.4f} |")
+    lines += [
+        "",
+        f"Set-points held at the optimum, no walk, the `{name}` vibration alone (200 envs x 300 "
+        "steps at the paper's 0.1 s): what a loop too slow to follow the vibration keeps at best.",
+        "",
+        "| N | mean P_N/P_max | 1 % quantile | worst step |",
+        "|---|---|---|---|",
+    ]
+    for row in held:
+        lines.append(
+            f"| {row['stage']} | {row['mean']:.4f} | {row['p01']:.4f} | {row['min']:.4f} |"
+        )
+    return lines
+
+
 def page(res: dict) -> str:
     """docs/results/physical_time/index.md from the measurements."""
-    ident, vib = res["identity"], res["vibration"]
+    ident = res["identity"]
     lines = [
         "<!-- Written by `"
         + COMMAND
@@ -207,32 +238,8 @@ def page(res: dict) -> str:
         lines.append(
             f"| {row['step_s']:g} | {row['steps']} | {row['walk_var_cycles2']:.3e} | {drift} |"
         )
-    lines += [
-        "",
-        "## The lab vibration",
-        "",
-        "40 delay lines sampled at 5 kHz for 12 s (Hann-windowed periodogram), rms over the "
-        f"lines; sample rms {vib['sample_rms_fs']:.4f} fs against the preset's "
-        f"{vib['preset_rms_fs']:.4f} fs ({vib['preset_rms_fs'] * 299.792458:.1f} nm of path).",
-        "",
-        "| band (Hz) | measured rms (fs) | preset (fs) |",
-        "|---|---|---|",
-    ]
-    for row in vib["bands"]:
-        lo, hi = row["band_hz"]
-        lines.append(f"| {lo:g}-{hi:g} | {row['measured_fs']:.4f} | {row['preset_fs']:.4f} |")
-    lines += [
-        "",
-        "Set-points held at the optimum, no walk, the lab vibration alone (200 envs x 300 steps "
-        "at the paper's 0.1 s): what a loop too slow to follow the vibration keeps at best.",
-        "",
-        "| N | mean P_N/P_max | 1 % quantile | worst step |",
-        "|---|---|---|---|",
-    ]
-    for row in res["held_optimum"]:
-        lines.append(
-            f"| {row['stage']} | {row['mean']:.4f} | {row['p01']:.4f} | {row['min']:.4f} |"
-        )
+    for name, vib in res["vibration"].items():
+        lines += vibration_section(name, vib, res["held_optimum"][name])
     lines += [
         "",
         "## Cost",
@@ -257,8 +264,9 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     from ops_bench.physics import cpu_name
 
-    res = {"identity": identity(), "per_second": per_second(), "vibration": vibration_bands()}
-    res["held_optimum"] = held_optimum()
+    res = {"identity": identity(), "per_second": per_second()}
+    res["vibration"] = {name: vibration_bands(name) for name in PRESETS}
+    res["held_optimum"] = {name: held_optimum(name) for name in PRESETS}
     res["speed"] = speed()
     res["date"] = time.strftime("%Y-%m-%d")
     res["machine"] = f"{cpu_name()}, {os.cpu_count()} cores"

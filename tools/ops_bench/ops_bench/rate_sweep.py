@@ -33,6 +33,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ops_contract.config import VIBRATIONS
+
 from ops_bench import REPO
 
 RATES = (10, 30, 100, 300, 1000)
@@ -85,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--quick", action="store_true", help="3 seeds x 10 s")
     p.add_argument("--mode", default="hard", choices=("easy", "medium", "hard", "extreme"))
-    p.add_argument("--vibration", default="lab", choices=("none", "lab"))
+    p.add_argument("--vibration", default="lab", choices=VIBRATIONS)
     p.add_argument(
         "--latency-ms",
         type=float,

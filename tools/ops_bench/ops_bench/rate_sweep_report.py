@@ -246,7 +246,7 @@ def describe(group: dict[str, Any]) -> str:
     )
 
 
-INTRO = """# Rate sweep: which controller holds, at which loop rate, under lab vibration
+INTRO = """# Rate sweep: which controller holds, at which loop rate, under vibration
 
 Written by `ops-bench rate-sweep` (tools/ops_bench/ops_bench/rate_sweep.py) from the cells in
 `cells.jsonl` (one JSON line per controller, loop rate and seed). The simulator runs in process

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ops_contract.config import VIBRATIONS
 
 from ops_bench import REPO
 
@@ -66,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=7201)
     p.add_argument("--controller", default="tracker", choices=("tracker", "spgd"))
     p.add_argument("--mode", default="hard", choices=("easy", "medium", "hard", "extreme"))
-    p.add_argument("--vibration", default="lab", choices=("none", "lab"))
+    p.add_argument("--vibration", default="lab", choices=VIBRATIONS)
     p.add_argument("--latency-ms", type=float, default=1.0, help="the rig's latency, ms")
     p.add_argument("--lag-ms", type=float, default=1.0, help="the delay lines' response, ms")
     p.add_argument(
