@@ -24,6 +24,7 @@ import os
 
 import pytest
 from ops_bench.processes import ProcessGroup
+from ops_contract.heap import freeze_after_heavy_imports
 from ops_contract.import_hooks import after_import
 from ops_contract.threads import limit_blas_threads, limit_torch_threads
 
@@ -60,6 +61,8 @@ def ros_domain():
 # torch, when this process imports it, on one thread (as the policy node runs it), unless the
 # user set a thread count.
 after_import("torch", lambda _torch: limit_torch_threads())
+# ... and its heap, with stable-baselines3's, out of the collector's walks (ops_contract.heap).
+freeze_after_heavy_imports()
 
 
 @pytest.fixture

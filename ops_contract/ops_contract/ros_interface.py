@@ -27,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 
 from .config import LIMITS, MAX_STAGE
+from .heap import freeze_after_heavy_imports
 from .threads import limit_blas_threads
 
 TOPIC_INTENSITY = "ops/intensity"
@@ -241,6 +242,7 @@ def run_node(make_node: Callable[[], Node], args=None, executor: str | None = No
     (:func:`~ops_contract.threads.limit_blas_threads`) unless the environment says otherwise.
     """
     limit_blas_threads()
+    freeze_after_heavy_imports()  # (the policy node's torch: ops_contract.heap)
     # rclpy's own handlers (installed by init, for SIGINT and SIGTERM) shut the context down, and
     # spin returns; they then call the Python handler found here. Python's default raises
     # KeyboardInterrupt wherever the main thread is, even inside rclpy's Task constructor, which

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from ops_contract.heap import freeze_after_heavy_imports
 
 from . import cli_args
 from .oracle import teacher_labels
@@ -360,6 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    freeze_after_heavy_imports()
     raw = cli_args.strip_ros_args(list(sys.argv[1:] if argv is None else argv))
     args = build_parser().parse_args(raw)
     t0 = time.perf_counter()

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 from ops_contract.config import SPLITS
+from ops_contract.heap import freeze_after_heavy_imports
 from ops_contract.held import HOLD_STEPS_MAX
 from ops_contract.observation import OBSERVATION_SETS
 from ops_contract.threads import limit_blas_threads
@@ -475,6 +476,7 @@ def run(argv: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> None:
     limit_blas_threads()
+    freeze_after_heavy_imports()
     try:
         code = run(argv)
     except KeyboardInterrupt:

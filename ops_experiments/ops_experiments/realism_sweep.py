@@ -22,6 +22,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from ops_contract.heap import freeze_after_heavy_imports
+
 from . import cli_args
 
 #: (case name, evaluate arguments): the ideal rig, one figure at a time, then the lab preset.
@@ -266,6 +268,7 @@ def run(argv: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> None:
+    freeze_after_heavy_imports()
     try:
         code = run(argv)
     except KeyboardInterrupt:

@@ -44,6 +44,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+from ops_contract.heap import freeze_after_heavy_imports
 from ops_contract.observation import OBSERVATION_SETS
 from ops_contract.threads import limit_blas_threads
 
@@ -286,6 +287,7 @@ def run(argv: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> None:
     limit_blas_threads()
+    freeze_after_heavy_imports()
     try:
         code = run(argv)
     except KeyboardInterrupt:  # before training started: nothing to save

@@ -366,6 +366,9 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
     _die_with_parent()
     signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+    from ops_contract.heap import freeze_after_heavy_imports
+
+    freeze_after_heavy_imports()
     spec = json.loads(Path(argv[0]).read_text())
     try:
         rec = execute(spec, Path(argv[1]))
