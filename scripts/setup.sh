@@ -75,26 +75,30 @@ if [ "$(cat "$deps_stamp" 2>/dev/null)" != "$deps_hash" ]; then
   say "installing pinned dependencies (${REQS[*]}); first run takes a few minutes"
   run_logged "installing Python dependencies" "$LOG_DIR/pip.log" \
     "$VPY" -m pip install --disable-pip-version-check "${req_args[@]}"
+  # The project's own editable packages, without build isolation (setuptools is pinned in
+  # dev.txt: an isolated build environment per package cost ~7 s each on a fresh clone).
   # The rosbag2/MCAP library of `ros2 bag`, evaluate --record and the Foxglove view (both modes).
   # compat: a path entry, so that `import ops_bag` from the repository's root (where ops_bag/ is
   # a folder, which Python would take for a namespace package) still finds the package.
   run_logged "installing ops_bag" "$LOG_DIR/ops_bag.log" \
-    "$VPY" -m pip install --disable-pip-version-check --no-deps \
+    "$VPY" -m pip install --disable-pip-version-check --no-deps --no-build-isolation \
     --config-settings editable_mode=compat -e ops_bag
-  # `ops-bench`: the benchmarks, figure and model tools, and the helpers the tests import.
-  run_logged "installing tools/ops_bench" "$LOG_DIR/ops_bench.log" \
-    "$VPY" -m pip install --disable-pip-version-check --no-deps -e tools/ops_bench
+  # `ops-bench`: the benchmarks, figure and model tools, and the helpers the tests import; and,
+  # without a system ROS 2, the `ros2` command line subset (tools/ros2cli): the wheels ship no
+  # ros2cli; a real one, if on PATH, is kept.
+  editables=(-e tools/ops_bench)
   if [ "$USE_SYSTEM_ROS" = 0 ]; then
-    # The wheels ship no ros2cli: install the project's compatible subset, unless a real one exists.
     if PATH="$(printf '%s' "$PATH" | tr ':' '\n' | grep -v "^$VENV/bin\$" | paste -sd:)" \
       command -v ros2 >/dev/null 2>&1; then
       say "a real 'ros2' is on PATH ($(command -v ros2)): not installing the subset"
     else
       say "installing the ros2 command line subset (tools/ros2cli)"
-      run_logged "installing tools/ros2cli" "$LOG_DIR/ros2cli.log" \
-        "$VPY" -m pip install --disable-pip-version-check --no-deps -e tools/ros2cli
+      editables+=(-e tools/ros2cli)
     fi
   fi
+  run_logged "installing ${editables[*]}" "$LOG_DIR/ops_bench.log" \
+    "$VPY" -m pip install --disable-pip-version-check --no-deps --no-build-isolation \
+    "${editables[@]}"
   echo "$deps_hash" >"$deps_stamp"
 else
   say "dependencies up to date"
