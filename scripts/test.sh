@@ -8,5 +8,7 @@ echo "[test] ruff check"
 ruff check .
 echo "[test] pytest"
 # One worker per core; a module's tests stay on one worker (their module-scoped processes and
-# models are made once). PYTEST_WORKERS=0 runs in this process alone.
-exec python -m pytest -n "${PYTEST_WORKERS:-auto}" --dist loadfile "$@"
+# models are made once), handed out in conftest.py's order, longest module first
+# (--no-loadscope-reorder: xdist would otherwise order them by their number of tests).
+# PYTEST_WORKERS=0 runs in this process alone.
+exec python -m pytest -n "${PYTEST_WORKERS:-auto}" --dist loadfile --no-loadscope-reorder "$@"

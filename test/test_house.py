@@ -133,3 +133,18 @@ def test_a_planted_duplicate_test_module_is_named(tmp_path):
     assert duplicate_test_modules(tmp_path) == [
         "test_same.py: pkg_a/test/test_same.py, pkg_b/test/test_same.py"
     ]
+
+
+def test_the_modules_handed_out_first_are_modules_of_the_suite():
+    """conftest.LONGEST_MODULES names test modules that exist (a renamed one would fall back
+    among the short ones and end the run late), each once."""
+    tree = ast.parse((ROOT / "conftest.py").read_text())
+    (value,) = [
+        node.value
+        for node in tree.body
+        if isinstance(node, ast.Assign) and ast.unparse(node.targets[0]) == "LONGEST_MODULES"
+    ]
+    longest = ast.literal_eval(value)  # (read, not imported: a second conftest shadows it)
+    names = {path.name for path in ROOT.rglob("test_*.py") if not SKIPPED.intersection(path.parts)}
+    assert sorted(set(longest) - names) == []
+    assert len(set(longest)) == len(longest)
