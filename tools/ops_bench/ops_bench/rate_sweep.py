@@ -17,8 +17,8 @@ per controller, LBNL's 50 mrad and 1.5 % marked) and ``OUT/index.md`` (every sto
 settings, a table each) are written from every stored cell.
 
 Usage (after ``source setup.bash``):
-  ops-bench rate-sweep                       # 10 seeds x 60 s, tracker, SPGD-PID, n5_hard_lab
-  ops-bench rate-sweep --quick               # 3 seeds x 10 s
+  ops-bench rate-sweep               # 10 seeds x 60 s: tracker, SPGD-PID, n5_hard_lab_dagger
+  ops-bench rate-sweep --quick       # 3 seeds x 10 s
   ops-bench rate-sweep --seconds 3600 --rates 1000 --controllers spgd --seeds 7101 --no-figure
 """
 
@@ -38,7 +38,7 @@ from ops_contract.config import VIBRATIONS
 from ops_bench import REPO
 
 RATES = (10, 30, 100, 300, 1000)
-CONTROLLERS = ("tracker", "spgd", "models/n5_hard_lab", "oracle")
+CONTROLLERS = ("tracker", "spgd", "models/n5_hard_lab_dagger", "oracle")
 SEEDS = tuple(range(7101, 7111))  # never used to tune anything
 QUICK_SEEDS, QUICK_SECONDS = SEEDS[:3], 10.0
 OUT = REPO / "docs" / "results" / "rate_sweep"
