@@ -97,8 +97,19 @@ OTHER_PAGES = (
     (
         "physical_time/index.md",
         "Physical time and vibration",
-        "time_base seconds against step, the walk and drift per simulated second, the lab "
-        "vibration's bands and cost, written by `ops-bench physical-time`",
+        "time_base seconds against step, the walk and drift per simulated second, each "
+        "vibration preset's bands and cost, written by `ops-bench physical-time`",
+    ),
+    (
+        "rate_sweep/index.md",
+        "Rate sweep",
+        "each controller at loop rates of 10 Hz-1 kHz under vibration, against LBNL's figures, "
+        "written by `ops-bench rate-sweep`",
+    ),
+    (
+        "soak/index.md",
+        "Soak",
+        "the tracker for simulated hours on the lab rig, written by `ops-bench soak`",
     ),
 )
 
