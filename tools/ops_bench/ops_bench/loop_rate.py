@@ -217,7 +217,9 @@ def uptime() -> str:
 
 
 def section(args, points: list[dict], load_start: str, load_end: str) -> list[str]:
-    cmd = "nice -n 5 ops-bench loop-rate " + " ".join(sys.argv[1:])
+    niceness = os.nice(0)  # the priority it ran at, as the user typed it
+    cmd = (f"nice -n {niceness} " if niceness else "") + "ops-bench loop-rate "
+    cmd += " ".join(sys.argv[1:])
     modes = ", ".join(f"{c} {args.mode or MODES[c]}" for c in args.controllers)
     lines = [
         SECTION,
