@@ -65,6 +65,19 @@ after_import("torch", lambda _torch: limit_torch_threads())
 freeze_after_heavy_imports()
 
 
+@pytest.fixture(scope="session", autouse=True)
+def sb3_logdir(tmp_path_factory):
+    """stable-baselines3 gives a model without a logger one in ``SB3_LOGDIR``, else a new
+    /tmp/SB3-<date> folder per model: the tests' go to a folder of the test run's own."""
+    saved = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
+    yield
+    if saved is None:
+        os.environ.pop("SB3_LOGDIR", None)
+    else:
+        os.environ["SB3_LOGDIR"] = saved
+
+
 @pytest.fixture
 def procs(tmp_path):
     group = ProcessGroup(tmp_path)
