@@ -21,6 +21,7 @@ from ops_sim_ros.simulation import BatchedSimulation
 from ops_sim_ros.vibration import PRESETS, Vibration
 
 from ops_bench.docs import save_figure
+from ops_bench.physical_time import periodogram
 
 
 def architecture(out: pathlib.Path, stage: int = 3) -> None:
@@ -187,13 +188,6 @@ def hysteresis(out: pathlib.Path) -> None:
     save_figure(fig, out / "physics_hysteresis.png", dpi=110)
 
 
-def _rms_below(x: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
-    """The rms of series ``x`` below each frequency (Hann-windowed periodogram)."""
-    power = np.abs(np.fft.rfft(x * np.hanning(x.size))) ** 2
-    power *= 2.0 / (x.size**2 * np.mean(np.hanning(x.size) ** 2))
-    return np.fft.rfftfreq(x.size, 1.0 / rate)[1:], np.sqrt(np.cumsum(power[1:]))
-
-
 def vibration(out: pathlib.Path, rate: float = 5000.0, seconds: float = 40.0) -> None:
     """The vibration presets, one delay line each: (a) the rms they hold below each frequency,
     measured on 40 s sampled at 5 kHz (periodogram) against the presets' band figures; (b) half
@@ -201,16 +195,20 @@ def vibration(out: pathlib.Path, rate: float = 5000.0, seconds: float = 40.0) ->
     t = np.arange(int(rate * seconds)) / rate
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     f = np.geomspace(0.5, 2000.0, 400)
+    vibs = {name: Vibration(p, 1, 1, np.random.default_rng(3)) for name, p in PRESETS.items()}
+    series = {name: np.array([vib.at(ti)[0, 0] for ti in t]) for name, vib in vibs.items()}
     for (name, preset), colour in zip(PRESETS.items(), ("tab:blue", "tab:orange"), strict=False):
-        vib = Vibration(preset, 1, 1, np.random.default_rng(3))
-        x = np.array([vib.at(ti)[0, 0] for ti in t])
-        freqs, below = _rms_below(x, rate)
+        freqs, power = periodogram(series[name], rate)
         label = f"{name}: {preset.rms_fs:.3f} fs = {preset.rms_fs * 299.792458:.0f} nm"
-        axes[0].semilogx(freqs, below, lw=1.2, color=colour, label=f"{label}, one delay line")
+        axes[0].semilogx(
+            freqs[1:],
+            np.sqrt(np.cumsum(power[1:])),
+            lw=1.2,
+            color=colour,
+            label=f"{label}, one delay line",
+        )
         expected = [preset.band_rms_fs(0.1, fi) for fi in f]
         axes[0].semilogx(f, expected, "--", color=colour, lw=0.9, label=f"{name}: the preset")
-        if name == "lab":
-            series = x
     for f0, _ in PRESETS["lab"].lines:
         axes[0].axvline(f0, color="tab:red", alpha=0.2, lw=3)
     axes[0].set_xlim(0.5, 2000)
@@ -219,12 +217,13 @@ def vibration(out: pathlib.Path, rate: float = 5000.0, seconds: float = 40.0) ->
     axes[0].set_ylabel("rms below f (fs)")
     axes[0].set_title("(a) each preset's rms below f, per delay line", fontsize=9)
     axes[0].legend(fontsize=7, loc="upper left")
-    vib = Vibration(PRESETS["lab"], 1, 1, np.random.default_rng(3))
     span = t < 0.5
-    axes[1].plot(t[span], series[span], lw=0.7, color="grey", label="lab, one delay line (5 kHz)")
+    axes[1].plot(
+        t[span], series["lab"][span], lw=0.7, color="grey", label="lab, one delay line (5 kHz)"
+    )
     for step_s, style in ((0.1, "o"), (0.01, ".")):
         k = np.arange(0, 0.5, step_s)
-        read = [vib.at(tk)[0, 0] for tk in k]
+        read = [vibs["lab"].at(tk)[0, 0] for tk in k]
         axes[1].plot(k, read, style, label=f"read every {step_s:g} s")
     axes[1].set_xlabel("time (s)")
     axes[1].set_ylabel("delay offset (fs)")

@@ -96,16 +96,21 @@ def per_second(steps_s=(0.1, 0.01, 0.001), envs=4000) -> list[dict]:
     return rows
 
 
+def periodogram(x: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The one-sided, Hann-windowed periodogram of ``x`` (time along axis 0, sampled at
+    ``rate_hz``): (frequencies, power per bin), the power of a band summing to its variance."""
+    n = x.shape[0]
+    window = np.hanning(n).reshape(n, *([1] * (x.ndim - 1)))
+    power = np.abs(np.fft.rfft(x * window, axis=0)) ** 2 * 2.0 / (n**2 * np.mean(window**2))
+    return np.fft.rfftfreq(n, 1.0 / rate_hz), power
+
+
 def vibration_bands(name: str, rate_hz=5000.0, seconds=12.0) -> dict:
     """(c) preset ``name`` sampled on 40 lines: rms per decade and in total, measured and set."""
     preset = PRESETS[name]
     vib = Vibration(preset, 8, 5, np.random.default_rng(8))
     x = np.stack([vib.at(i / rate_hz) for i in range(int(seconds * rate_hz))]).reshape(-1, 40)
-    window = np.hanning(x.shape[0])[:, None]
-    power = (
-        np.abs(np.fft.rfft(x * window, axis=0)) ** 2 * 2.0 / (x.shape[0] ** 2 * np.mean(window**2))
-    )
-    freqs = np.fft.rfftfreq(x.shape[0], 1.0 / rate_hz)
+    freqs, power = periodogram(x, rate_hz)
     bands = [(1.0, 10.0), (10.0, 100.0), (100.0, 1000.0), (1.0, 1000.0)]
     rows = []
     for lo, hi in bands:
