@@ -46,16 +46,11 @@ def _domain_for_next_module() -> int:
 @pytest.fixture(scope="module", autouse=True)
 def ros_domain():
     """A ROS_DOMAIN_ID of this module's own, also seen by everything it starts."""
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
     domain = _domain_for_next_module()
-    os.environ["ROS_DOMAIN_ID"] = str(domain)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    yield domain
-    for k, v in saved.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("ROS_DOMAIN_ID", str(domain))
+        mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        yield domain
 
 
 # torch, when this process imports it, on one thread (as the policy node runs it), unless the
@@ -69,13 +64,9 @@ freeze_after_heavy_imports()
 def sb3_logdir(tmp_path_factory):
     """stable-baselines3 gives a model without a logger one in ``SB3_LOGDIR``, else a new
     /tmp/SB3-<date> folder per model: the tests' go to a folder of the test run's own."""
-    saved = os.environ.get("SB3_LOGDIR")
-    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
-    yield
-    if saved is None:
-        os.environ.pop("SB3_LOGDIR", None)
-    else:
-        os.environ["SB3_LOGDIR"] = saved
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
+        yield
 
 
 @pytest.fixture
