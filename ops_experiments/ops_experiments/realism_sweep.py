@@ -43,10 +43,18 @@ PANELS = (
     ("pulse energy noise, % rms", "amplitude noise ", (1, 3), 0),
 )
 CONTROLLERS = ("tracker", "spgd")
-#: The learned models the README names, per mode, and the one trained on the rig (hard).
+#: The learned models of each mode: the students the README names (the hard one trained on the
+#: lab rig too), and the SAC models they replaced, for comparison.
 MODELS = {
-    "medium": ("models/n5_medium",),
-    "hard": ("models/n5_hard", "models/n5_hard_switch", "models/n5_hard_lab"),
+    "easy": ("models/n5_easy_dagger",),
+    "medium": ("models/n5_medium", "models/n5_medium_dagger"),
+    "hard": (
+        "models/n5_hard",
+        "models/n5_hard_switch",
+        "models/n5_hard_lab",
+        "models/n5_hard_dagger",
+        "models/n5_hard_lab_dagger",
+    ),
 }
 DEFAULT_SEEDS = tuple(range(8301, 8321))  # never used for training or tuning
 
@@ -55,7 +63,7 @@ def build_parser():
     p = cli_args.make_parser(
         "realism_sweep", "Final P_N/P_max of the controllers against the rig's imperfections."
     )
-    p.add_argument("--modes", nargs="+", default=["medium", "hard"], help="modes (N = 5)")
+    p.add_argument("--modes", nargs="+", default=["easy", "medium", "hard"], help="modes (N = 5)")
     p.add_argument(
         "--subjects",
         nargs="+",

@@ -20,8 +20,11 @@ def test_the_cells_cover_every_figure_of_the_issue_and_tell_the_controller():
                  "10-bit trace", "12-bit trace", "hysteresis 5%", "hysteresis 15%",
                  "amplitude noise 1%", "amplitude noise 3%", "lab"):  # fmt: skip
         assert case in cases
-    assert {c["mode"] for c in todo} == {"medium", "hard"}
-    assert {c["subject"] for c in todo} >= {"tracker", "spgd", "n5_medium", "n5_hard"}
+    assert {c["mode"] for c in todo} == {"easy", "medium", "hard"}
+    subjects = {(c["subject"], c["mode"]) for c in todo}
+    for name in ("easy_dagger", "medium_dagger", "hard_dagger", "hard_lab_dagger"):
+        assert (f"n5_{name}", name.split("_")[0]) in subjects  # the README's models
+    assert {("tracker", "easy"), ("spgd", "hard"), ("n5_hard", "hard")} <= subjects
     lab = next(c for c in todo if c["case"] == "lab" and c["subject"] == "tracker")
     assert lab["argv"][lab["argv"].index("--realism") + 1] == "lab"
     lat = next(c for c in todo if c["case"] == "latency 2" and c["subject"] == "spgd")
