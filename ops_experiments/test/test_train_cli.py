@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import importlib
+import io
 import json
 import re
 import shutil
@@ -23,7 +26,11 @@ pytestmark = pytest.mark.timeout(180)
 FAST = ["learning_starts=200", "net_arch=[64,64]", "batch_size=64", "checkpoint_freq=500"]
 
 
-def run(exe: str, *args, timeout=150) -> subprocess.CompletedProcess:
+_COMMANDS = {"train": "ops_experiments.train", "evaluate": "ops_experiments.evaluate"}
+
+
+def run_command(exe: str, *args, timeout=150) -> subprocess.CompletedProcess:
+    """``ros2 run ops_gym_bridge EXE ARGS`` as a user types it, in a new process."""
     return subprocess.run(
         [*executable("ops_gym_bridge", exe), *map(str, args)],
         capture_output=True,
@@ -33,10 +40,25 @@ def run(exe: str, *args, timeout=150) -> subprocess.CompletedProcess:
     )
 
 
+def run(exe: str, *args, timeout=None) -> subprocess.CompletedProcess:
+    """The same command's ``run(argv)`` (what its ``main`` calls) in this process, its output
+    captured: no new interpreter importing torch and stable-baselines3 again (3-5 s each). The
+    command lines themselves run in new processes in ``trained`` and the Ctrl-C test."""
+    module = importlib.import_module(_COMMANDS[exe])
+    argv = list(map(str, args))
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = module.run(argv)
+        except SystemExit as exc:  # argparse's refusals
+            code = exc.code if isinstance(exc.code, int) else 1
+    return subprocess.CompletedProcess([exe, *argv], code, out.getvalue(), err.getvalue())
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("train") / "sac_n3"
-    done = run(
+    done = run_command(
         "train",
         "--algo",
         "sac",
