@@ -41,11 +41,16 @@ class _AfterImport(importlib.abc.MetaPathFinder):
 
 def after_import(name: str, callback: Callable[[ModuleType], None]) -> None:
     """Call ``callback(module)`` once the top-level module ``name`` is loaded: now, if it is,
-    else right after its first import. A second request with the same callback (by its module
-    and qualified name: a package imported again) is not added twice."""
+    else right after its first import. A request with the same function as a waiting one (by
+    its module and qualified name: a package imported again, a command run again in one
+    process) takes its place: the function runs once, as the latest request made it (a
+    closure's values are the latest run's)."""
     if name in sys.modules:
         callback(sys.modules[name])
         return
     key = f"{name}:{callback.__module__}.{callback.__qualname__}"
-    if not any(isinstance(f, _AfterImport) and f.key == key for f in sys.meta_path):
-        sys.meta_path.insert(0, _AfterImport(name, callback, key))
+    for finder in sys.meta_path:
+        if isinstance(finder, _AfterImport) and finder.key == key:
+            finder.callback = callback
+            return
+    sys.meta_path.insert(0, _AfterImport(name, callback, key))

@@ -444,21 +444,13 @@ def format_table(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-#: --torch-threads of the last run (read by _set_torch_threads when torch loads).
-_TORCH_THREADS = [1]
-
-
-def _set_torch_threads(torch) -> None:
-    torch.set_num_threads(_TORCH_THREADS[0])
-
-
 def run(argv: list[str] | None = None) -> int:
     args = cli_args.parse_args(build_parser(), argv)
     if args.torch_threads > 0:
         # As torch loads (a learned model's evaluation): a controller's evaluation never needs
         # it, and importing torch only to set its threads cost ~2 s of CPU.
-        _TORCH_THREADS[0] = args.torch_threads
-        after_import("torch", _set_torch_threads)
+        threads = args.torch_threads
+        after_import("torch", lambda torch: torch.set_num_threads(threads))
     try:
         subject = resolve_subject(args)
         if args.continuous is not None:
