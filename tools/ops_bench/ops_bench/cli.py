@@ -65,6 +65,7 @@ TOOLS: dict[str, Tool] = {
     "reference-actions": Tool("reference_actions", "store a shipped model's reference actions"),
     "switch-model": Tool("switch_model", "a switching model: one policy acquires, one holds"),
     "learning-curves": Tool("learning_curves", "training recipes on their learning curves"),
+    "recipes": Tool("recipes", "train the learning recipes side by side, then their curves"),
     "results": Tool(
         "results_pages", "the results pages (docs/results.md, its topics) from stored runs"
     ),
