@@ -16,6 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import lm
+
 HOP_RATIO_PRIOR = 0.05  # prior std of the period error fitted over a window with a move
 
 
@@ -104,7 +106,8 @@ class PathProblem(NamedTuple):
     weights, and the normal equations' parts that do not depend on the variables (the walk
     between readings, linear, and the priors). The variables z (M, D): the path (K * N), the
     drift (N), then r (if ``ratio``), then g (if ``gain`` >= 0), then o (if ``level`` >= 0),
-    then the knot's change (if knots)."""
+    then the knot's change (if knots). ``walk`` and ``walk_normal`` hold one row that every
+    start shares, or (knots) one per start."""
 
     stacker: object
     period_fs: float
@@ -118,61 +121,46 @@ class PathProblem(NamedTuple):
     d: int  # all variables
     r_sd: float  # std of a reading about the model
     w_sd: float  # std of the random walk per step
-    walk: np.ndarray  # (M, (K - 1) N, D) the walk's residuals per unit of w_sd
-    walk_normal: np.ndarray  # (M, D, D) walk^T walk / w_sd^2
+    walk: np.ndarray  # (1 or M, (K - 1) N, D) the walk's residuals per unit of w_sd
+    walk_normal: np.ndarray  # (1 or M, D, D) walk^T walk / w_sd^2
     prior_w: np.ndarray  # (M, D) the priors' weights (1 / std^2)
     prior_mean: np.ndarray  # (M, D)
-    offsets: np.ndarray  # (N + 1, N) finite-difference points of the Jacobian
-    blocks: np.ndarray  # (K, N) the path's indices per reading
     evaluated: list  # [rows the physics evaluated for it so far]: its work
+
+
+#: The finite-difference step of the path fits' Jacobian, cycles.
+PATH_STEP = 1e-4
+_NO_JACOBIAN = np.empty((0, 0, 0, 0))
 
 
 @functools.lru_cache(maxsize=64)
 def _walk_rows(k: int, n: int, d: int, gaps: tuple) -> np.ndarray:
     """The walk between readings as rows over the variables: X_i - X_i-1 - gap mu, scaled to
-    std walk (gap: steps between the readings); read-only, kept for the next window of the same
-    shape and gaps."""
+    std walk (gap: steps between the readings), as one start's (1, (K - 1) N, D); kept for the
+    next window of the same shape and gaps."""
     nz = k * n + n
-    walk = np.zeros(((k - 1) * n, d))
+    walk = np.zeros((1, (k - 1) * n, d))
     for i in range(1, k):  # X_i - X_i-1 - gap mu, std walk sqrt(gap)
         rows = slice((i - 1) * n, i * n)
         gap = gaps[i - 1]
-        walk[rows, i * n : (i + 1) * n] = np.eye(n) / gap**0.5
-        walk[rows, (i - 1) * n : i * n] = -np.eye(n) / gap**0.5
-        walk[rows, k * n : nz] = -np.eye(n) * gap**0.5
-    walk.flags.writeable = False
-    return walk
+        walk[0, rows, i * n : (i + 1) * n] = np.eye(n) / gap**0.5
+        walk[0, rows, (i - 1) * n : i * n] = -np.eye(n) / gap**0.5
+        walk[0, rows, k * n : nz] = -np.eye(n) * gap**0.5
+    return walk  # (shared: not to be changed)
 
 
 @functools.lru_cache(maxsize=64)
-def _walk(k: int, n: int, d: int, gaps: tuple, m: int) -> np.ndarray:
-    """The walk rows of M starts without knots: one read-only view (M, (K - 1) N, D)."""
-    return np.broadcast_to(_walk_rows(k, n, d, gaps), (m, (k - 1) * n, d))
-
-
-@functools.lru_cache(maxsize=64)
-def _walk_normal(k: int, n: int, d: int, gaps: tuple, m: int, w_sd: float) -> np.ndarray:
-    """walk^T walk / w_sd^2 (M, D, D) of M starts without knots (read-only, kept)."""
-    walk = _walk(k, n, d, gaps, m)
-    out = walk.transpose(0, 2, 1) @ walk / w_sd**2
-    out.flags.writeable = False
-    return out
-
-
-@functools.lru_cache(maxsize=16)
-def _index(k: int, n: int, h: float) -> tuple:
-    """(offsets (N + 1, N): the Jacobian's finite-difference points; blocks (K, N): the path's
-    variables per reading), read-only."""
-    offsets = np.concatenate([np.zeros((1, n)), h * np.eye(n)])
-    blocks = (np.arange(k)[:, None] * n + np.arange(n)[None]).reshape(k, n)
-    offsets.flags.writeable = blocks.flags.writeable = False
-    return offsets, blocks
+def _walk_normal(k: int, n: int, d: int, gaps: tuple, w_sd: float) -> np.ndarray:
+    """walk^T walk / w_sd^2 (1, D, D) of the starts without knots (kept)."""
+    walk = _walk_rows(k, n, d, gaps)
+    return walk.transpose(0, 2, 1) @ walk / w_sd**2  # (shared: not to be changed)
 
 
 def _add_knots(walk, prior_w, knots, gaps, k: int, n: int, d: int, knot_prior: float):
-    """The walk steps after each start's knot: minus gap * delta (the knot's change, the last
-    variable, with prior std ``knot_prior``)."""
-    walk = walk.copy()
+    """Each start's walk (M, (K - 1) N, D): the walk steps after its knot minus gap * delta
+    (the knot's change, the last variable, with prior std ``knot_prior``)."""
+    m = prior_w.shape[0]
+    walk = np.repeat(walk, m, axis=0)
     for i in range(1, k):
         after = np.flatnonzero(i >= np.asarray(knots[1]))
         rows = (i - 1) * n + np.asarray(knots[0])[after]
@@ -209,7 +197,7 @@ def path_problem(
     d = nz + (1 if ratio else 0) + fits_gain + fits_level + (0 if knots is None else 1)
     gaps = np.maximum(age[:-1] - age[1:], 1.0)  # steps between consecutive readings
     gap_key = tuple(gaps.tolist())
-    walk = _walk(k, n, d, gap_key, m)
+    walk = _walk_rows(k, n, d, gap_key)
     prior_w = np.zeros((m, d))
     prior_w[:, k * n : nz] = 1.0 / drift_prior**2
     if ratio:
@@ -218,15 +206,13 @@ def path_problem(
         prior_w[:, gain] = 1.0 / gain_prior**2
     if fits_level:
         prior_w[:, level] = 1.0 / level_prior**2
-    if knots is not None:
-        walk = _add_knots(walk, prior_w, knots, gaps, k, n, d, knot_prior)
-    prior_mean = np.zeros((m, d))
-    prior_mean[:, k * n : nz] = drift.copy()
     if knots is None:
-        walk_normal = _walk_normal(k, n, d, gap_key, m, float(w_sd))
+        walk_normal = _walk_normal(k, n, d, gap_key, float(w_sd))
     else:
+        walk = _add_knots(walk, prior_w, knots, gaps, k, n, d, knot_prior)
         walk_normal = walk.transpose(0, 2, 1) @ walk / w_sd**2
-    offsets, blocks = _index(k, n, 1e-4)
+    prior_mean = np.zeros((m, d))
+    prior_mean[:, k * n : nz] = drift
     return PathProblem(
         stacker=stacker,
         period_fs=period_fs,
@@ -244,49 +230,39 @@ def path_problem(
         walk_normal=walk_normal,
         prior_w=prior_w,
         prior_mean=prior_mean,
-        offsets=offsets,
-        blocks=blocks,
         evaluated=[0],
     )
 
 
-def path_residuals(pb: PathProblem, z: np.ndarray, with_jacobian: bool):
-    """Predicted minus measured readings (M, K, R) and d prediction / d path (M, K, R, N) (None
-    without ``with_jacobian``); z: (M, D), any number M of the starts."""
+def path_residuals(pb: PathProblem, z, starts, err, jac=_NO_JACOBIAN) -> None:
+    """Predicted minus measured readings of starts ``starts`` at z (len(starts), D) into
+    ``err[starts]`` (K, R), and with ``jac`` d prediction / d path into ``jac[starts]`` (K, R,
+    N): the physics evaluates the points :func:`.lm.points` gives, in one batch."""
     k, n = pb.u.shape
-    m = z.shape[0]
-    h = pb.offsets[1, 0]
-    xs = z[:, : k * n].reshape(m, k, n)
-    pts = pb.u[None] + xs + (z[:, pb.nz, None, None] * pb.u_centred[None] if pb.ratio else 0.0)
-    if with_jacobian:
-        pts = pts[:, :, None, :] + pb.offsets[None, None]  # (M, K, N + 1, N)
-    rows = pts.reshape(-1, n)
+    with_jacobian = jac.shape[0] > 0
+    rows = np.empty((z.shape[0] * k * (n + 1 if with_jacobian else 1), n))
+    lm.points(z, pb.u, pb.u_centred, pb.nz, pb.ratio, PATH_STEP, pb.period_fs, with_jacobian, rows)
+    energies, power = _evaluate(pb, rows)
+    lm.residuals(energies, power, z, starts, pb.gain, pb.level, pb.y, PATH_STEP, err, jac)
+
+
+def _evaluate(pb: PathProblem, rows):
+    """The physics at ``rows`` (B, N) of delays, fs: (slot energies (B, S), power (B,)), counted
+    as the fit's work."""
     pb.evaluated[0] += rows.shape[0]
-    energies, power = pb.stacker.energies_and_power(rows * pb.period_fs)
-    pred = np.concatenate([energies, power[:, None]], axis=1)
-    if pb.gain >= 0:  # the slot energies (not the power) times 1 + g
-        scale = np.repeat(1.0 + z[:, pb.gain], pred.shape[0] // m)
-        pred[:, :-1] *= scale[:, None]
-    if pb.level >= 0:  # ... plus o
-        pred[:, :-1] += np.repeat(z[:, pb.level], pred.shape[0] // m)[:, None]
-    if not with_jacobian:
-        return pred.reshape(m, k, -1) - pb.y[None], None
-    pred = pred.reshape(m, k, n + 1, -1)
-    jac_k = (pred[:, :, 1:] - pred[:, :, :1]).transpose(0, 1, 3, 2) / h  # M, K, R, N
-    return pred[:, :, 0] - pb.y[None], jac_k
+    return pb.stacker.energies_and_power(rows)
 
 
-def _rows(a: np.ndarray, i: np.ndarray) -> np.ndarray:
-    """``a[i]`` for reading (``i``: sorted distinct starts): ``a`` itself where ``i`` takes every
-    row (the same figures in the same layout, without the copy); a view the caller must not
-    change."""
-    if i.size == a.shape[0] and (a.shape[0] == 1 or a.strides[0] != 0):
-        return a
-    return a[i]
+def path_objective(pb: PathProblem, z, starts, err, cost_, data_cost) -> None:
+    """The whole cost of starts ``starts`` at z (readings, walk and priors) into
+    ``cost_[starts]``, the readings' mean square into ``data_cost[starts]``."""
+    args = (pb.walk, pb.prior_w, pb.prior_mean, pb.r_sd, pb.w_sd, cost_, data_cost)
+    lm.objective(z, starts, err, *args)
 
 
 def _diagonal(a: np.ndarray) -> np.ndarray:
-    """A writeable view (M, D) of the diagonals of the C-contiguous ``a`` (M, D, D)."""
+    """A writeable view (M, D) of the diagonals of the C-contiguous ``a`` (M, D, D) (the
+    normal equations' numpy form sums into it: test_tracker_kernels)."""
     m, d = a.shape[:2]
     return a.reshape(m, d * d)[:, :: d + 1]
 
@@ -299,76 +275,25 @@ def _path_blocks(a: np.ndarray, k: int, n: int) -> np.ndarray:
     return flat[:, :, : n * d].reshape(m, k, n, d)[..., :n]
 
 
-def _mean_squares(e: np.ndarray) -> np.ndarray:
-    """The mean square of each start's residuals (M, K, R) -> (M,): what ``np.mean(e ** 2,
-    axis=(1, 2))`` computes (the same sum, then the same division), without its overhead."""
-    return np.add.reduce(e * e, axis=(1, 2)) / (e.shape[1] * e.shape[2])
+class _Scratch(NamedTuple):
+    """A fit's arrays, written start by start: residuals (M, K, R), Jacobian (M, K, R, N), and
+    ``costs`` (3, M): the whole cost, the mean squared residual and the damping; the trials'
+    residuals and costs."""
 
+    err: np.ndarray
+    jac: np.ndarray
+    costs: np.ndarray
+    t_err: np.ndarray
+    t_costs: np.ndarray
 
-def path_objective(pb: PathProblem, z, err, i) -> np.ndarray:
-    """The whole cost of starts i at z (len(i), D): readings, walk and priors."""
-    dz = z - _rows(pb.prior_mean, i)
-    walk_res = np.einsum("mrd,md->mr", _rows(pb.walk, i), z)
-    return (
-        np.einsum("mkr,mkr->m", err, err) / pb.r_sd**2
-        + np.einsum("mr,mr->m", walk_res, walk_res) / pb.w_sd**2
-        + np.einsum("md,md,md->m", dz, dz, _rows(pb.prior_w, i))
-    )
-
-
-def path_normal_equations(pb: PathProblem, z, err, jac_k, i):
-    """J^T J (M, D, D) and J^T r (M, D) of the whole cost of starts i at z; no full Jacobian is
-    formed: the readings (block diagonal in the path, plus r), the walk and the priors."""
-    r_var, blocks, nz = pb.r_sd**2, pb.blocks, pb.nz
-    k, n = blocks.shape
-    jtj = pb.walk_normal[i]  # (a copy: the sums go into it)
-    jtr = np.einsum("mde,me->md", jtj, z)
-    data_jtj = np.einsum("mkri,mkrj->mkij", jac_k, jac_k) / r_var  # (M, K, N, N)
-    _path_blocks(jtj, k, n)[...] += data_jtj
-    path_part = jtr[:, : k * n].reshape(jtr.shape[0], k, n)  # (a view: the KN are contiguous)
-    path_part += np.einsum("mkri,mkr->mki", jac_k, err) / r_var
-    if pb.ratio:  # d phase / d r = the centred set-points
-        g = np.einsum("mkrn,kn->mkr", jac_k, pb.u_centred)
-        cross = np.einsum("mkri,mkr->mki", jac_k, g) / r_var
-        jtj[:, blocks, nz] += cross
-        jtj[:, nz, blocks] += cross
-        jtj[:, nz, nz] += np.einsum("mkr,mkr->m", g, g) / r_var
-        jtr[:, nz] += np.einsum("mkr,mkr->m", g, err) / r_var
-    if pb.gain >= 0:  # d prediction / d g = the slot energies at 1 + g = 1
-        gi = pb.gain
-        level = z[:, pb.level, None, None] if pb.level >= 0 else 0.0
-        f = (err + pb.y[None] - level) / (1.0 + z[:, gi])[:, None, None]
-        f[:, :, -1] = 0.0
-        cross = np.einsum("mkri,mkr->mki", jac_k, f) / r_var
-        jtj[:, blocks, gi] += cross
-        jtj[:, gi, blocks] += cross
-        jtj[:, gi, gi] += np.einsum("mkr,mkr->m", f, f) / r_var
-        jtr[:, gi] += np.einsum("mkr,mkr->m", f, err) / r_var
-        if pb.ratio:
-            both = np.einsum("mkr,mkr->m", g, f) / r_var
-            jtj[:, nz, gi] += both
-            jtj[:, gi, nz] += both
-    if pb.level >= 0:  # d prediction / d o = 1 for every slot energy, 0 for the power
-        li = pb.level
-        ones = np.ones(err.shape[1:])
-        ones[:, -1] = 0.0
-        cross = np.einsum("mkri,kr->mki", jac_k, ones) / r_var
-        jtj[:, blocks, li] += cross
-        jtj[:, li, blocks] += cross
-        jtj[:, li, li] += ones.sum() / r_var
-        jtr[:, li] += np.einsum("mkr,kr->m", err, ones) / r_var
-        if pb.ratio:
-            both = np.einsum("mkr,kr->m", g, ones) / r_var
-            jtj[:, nz, li] += both
-            jtj[:, li, nz] += both
-        if pb.gain >= 0:
-            both = np.einsum("mkr,kr->m", f, ones) / r_var
-            jtj[:, pb.gain, li] += both
-            jtj[:, li, pb.gain] += both
-    prior_w = _rows(pb.prior_w, i)
-    _diagonal(jtj)[...] += prior_w
-    jtr += prior_w * (z - _rows(pb.prior_mean, i))
-    return jtj, jtr
+    @classmethod
+    def of(cls, pb: PathProblem, m: int):
+        k, n = pb.u.shape
+        r = pb.y.shape[1]
+        costs = np.empty((3, m))
+        costs[:2], costs[2] = np.inf, 1e-3
+        t_err = np.empty((m, k, r)) if m > 1 else None
+        return cls(np.empty((m, k, r)), np.empty((m, k, r, n)), costs, t_err, np.empty((2, m)))
 
 
 def _lm_iterations(pb: PathProblem, z, iterations: int, prune, chunk=None):
@@ -381,72 +306,58 @@ def _lm_iterations(pb: PathProblem, z, iterations: int, prune, chunk=None):
     m = z.shape[0]
     size = m if chunk is None else max(int(chunk), 1)
     groups = [np.arange(a, min(a + size, m)) for a in range(0, m, size)]
-    err = jac_k = None
-    cost_, data_cost = np.full(m, np.inf), np.full(m, np.inf)
+    sc = _Scratch.of(pb, m)
+    cost_, data_cost = sc.costs[0], sc.costs[1]
     for gi, g in enumerate(groups):
-        zg = _rows(z, g)
-        e, j = path_residuals(pb, zg, True)
-        if len(groups) == 1:  # as they come (their layout sets the sums' rounding downstream)
-            err, jac_k = e, j
-        else:
-            if err is None:
-                err, jac_k = np.empty((m, *e.shape[1:])), np.empty((m, *j.shape[1:]))
-            err[g], jac_k[g] = e, j
-        cost_[g] = path_objective(pb, zg, e, g)
-        data_cost[g] = _mean_squares(e)
+        zg = z if len(groups) == 1 else z[g]
+        path_residuals(pb, zg, g, sc.err, sc.jac)
+        path_objective(pb, zg, g, sc.err, cost_, data_cost)
         if chunk is not None or gi == len(groups) - 1:
             yield cost_, data_cost, iterations <= 0 and gi == len(groups) - 1
-    lam = np.full(m, 1e-3)
     act = np.arange(m)  # the starts still iterating
     for it in range(iterations):
         if prune is not None and it == prune[0] and act.size > prune[1]:
             act = np.union1d(np.argsort(cost_)[: prune[1]], [0])  # the first iterates on
         parts = [act[a : a + size] for a in range(0, act.size, size)]
         for pi, part in enumerate(parts):
-            _lm_step(pb, z, part, err, jac_k, cost_, data_cost, lam)
+            _lm_step(pb, z, part, sc)
             yield cost_, data_cost, it == iterations - 1 and pi == len(parts) - 1
 
 
-def _lm_step(pb: PathProblem, z, act, err, jac_k, cost_, data_cost, lam) -> None:
-    """One Levenberg-Marquardt iteration of starts ``act``, in place."""
-    za = _rows(z, act)
-    jtj, jtr = path_normal_equations(pb, za, _rows(err, act), _rows(jac_k, act), act)
-    damping = lam[act, None] * (np.einsum("mii->mi", jtj) + 1e-12)
-    _diagonal(jtj)[...] += damping  # (jtj is the equations' own copy)
-    step = -np.linalg.solve(jtj, jtr[:, :, None])[:, :, 0]
-    trial = za + np.minimum(np.maximum(step, -0.1), 0.1)  # (np.clip, without its overhead)
-    if act.size == 1:
-        _try_one(pb, z, act, trial, err, jac_k, cost_, data_cost, lam)
+def _lm_step(pb: PathProblem, z, act, sc: _Scratch) -> None:
+    """One Levenberg-Marquardt iteration of starts ``act``, in place: the trial step
+    (:func:`.lm.trial_step`) taken where it lowers the cost. A single start's trial (a
+    tracking fit's, which moves nearly every time) is evaluated with its Jacobian at once
+    (:func:`.lm.accept_one`): the same figures as its residuals first and the Jacobian after
+    a move, with one evaluation less."""
+    k, n = pb.u.shape
+    one = act.size == 1
+    trial = np.empty((act.size, pb.d))
+    rows = np.empty((act.size * k * (n + 1 if one else 1), n))
+    fixed = (pb.walk_normal, pb.prior_w, pb.prior_mean, sc.costs[2], pb.u_centred, pb.y)
+    flags = (pb.nz, pb.ratio, pb.gain, pb.level, pb.r_sd)
+    lm.trial_step(
+        z[act], act, sc.err, sc.jac, *fixed, *flags, trial, pb.u, PATH_STEP, pb.period_fs, one, rows
+    )
+    energies, power = _evaluate(pb, rows)
+    if one:
+        args = (pb.walk, pb.prior_w, pb.prior_mean, pb.r_sd, pb.w_sd, z, sc.err, sc.jac, sc.costs)
+        lm.accept_one(
+            energies, power, trial, int(act[0]), pb.gain, pb.level, pb.y, PATH_STEP, *args
+        )
         return
-    t_err, _ = path_residuals(pb, trial, False)
-    t_cost = path_objective(pb, trial, t_err, act)
-    better = t_cost < cost_[act]
+    lm.residuals(
+        energies, power, trial, act, pb.gain, pb.level, pb.y, PATH_STEP, sc.t_err, _NO_JACOBIAN
+    )
+    path_objective(pb, trial, act, sc.t_err, sc.t_costs[0], sc.t_costs[1])
+    cost_, data_cost, lam = sc.costs
+    better = sc.t_costs[0, act] < cost_[act]
     lam[act] = np.where(better, lam[act] * 0.3, lam[act] * 10.0)
     if better.any():  # the Jacobian again only where a start moved
         moved = act[better]
         z[moved] = trial[better]
-        cost_[moved] = t_cost[better]
-        data_cost[moved] = _mean_squares(t_err[better])
-        err[moved], jac_k[moved] = path_residuals(pb, z[moved], True)
-
-
-def _try_one(pb: PathProblem, z, act, trial, err, jac_k, cost_, data_cost, lam) -> None:
-    """The trial of a single start (a tracking fit's, which moves nearly every time): evaluated
-    with its Jacobian at once, taken if it lowers the cost. The same figures as the trial's
-    residuals first and the Jacobian after a move (the physics evaluates each row alone), with
-    one evaluation less."""
-    t_err, t_jac = path_residuals(pb, trial, True)
-    t_cost = path_objective(pb, trial, t_err, act)
-    a = int(act[0])
-    if not t_cost[0] < cost_[a]:
-        lam[a] *= 10.0
-        return
-    lam[a] *= 0.3
-    rows = slice(a, a + 1)
-    z[rows] = trial
-    cost_[a] = t_cost[0]
-    data_cost[a] = _mean_squares(t_err)[0]
-    err[rows], jac_k[rows] = t_err, t_jac
+        cost_[moved], data_cost[moved] = sc.t_costs[0, moved], sc.t_costs[1, moved]
+        path_residuals(pb, z[moved], moved, sc.err, sc.jac)
 
 
 def fit_paths(*args, deadline=None, **kwargs) -> PathFits:
