@@ -96,15 +96,27 @@ def test_a_lock_with_a_gain_off_holds_through_a_slow_tracker():
 def test_a_lock_whose_detector_offset_is_off_holds():
     """A detector's reading of no light 4e-4 of the full scale high (a rig whose calibrated
     offset is off and that does not measure it in each record, docs/rig.md): every empty slot
-    of the stack reads like leaking light. Fitted with the gain in the first window after the
-    lock (``lock_offset_walk``), it costs nothing; left out, seed 2 held 87.6 % with 104 knots
-    on one CPU, 96.8 % with 41 on another (20 seeds of a scratch loop: 0.857 mean, 7 below
-    0.97, against 1.000 and none)."""
-    runs = [_held_with_a_gain_off(s, 1.016, 0.15, 300, p_gap=0.1, offset=4e-4) for s in (2, 5, 10)]
-    assert all(held >= 0.99 for held, _, _ in runs), runs
-    assert sum(knots for _, knots, _ in runs) <= 6, runs
-    old = _held_with_a_gain_off(2, 1.016, 0.15, 300, p_gap=0.1, offset=4e-4, lock_offset_walk=0)
-    assert old[0] < min(held for held, _, _ in runs) and old[1] > 20, (old, runs)
+    of the stack reads like leaking light, which the fits take for knots. Fitted with the gain
+    in the first window after the lock (``lock_offset_walk``), it costs nothing; left out, the
+    runs take false knots, and now and then lose the stack (seed 2: 0.81-1.00 held, 20-121
+    knots).
+
+    Each run is one chaotic trajectory: a change of the fits in the last bits (the order of a
+    sum) moves a run's knots and lost readings, so the claims are sums over seeds 1-8 with a
+    margin. Measured over the numpy and the compiled fits, and with the readings jittered by
+    1e-12 (5 trajectories of each seed): fitted, 3-4 knots in all and no run below 0.992; left
+    out, 43-144 knots in all (20-28 without seed 2)."""
+    seeds = range(1, 9)
+    gain_off = (1.016, 0.15, 300)
+    fitted = [_held_with_a_gain_off(s, *gain_off, p_gap=0.1, offset=4e-4) for s in seeds]
+    assert min(held for held, _, _ in fitted) >= 0.98, fitted
+    assert np.mean([held for held, _, _ in fitted]) >= 0.995, fitted
+    assert sum(knots for _, knots, _ in fitted) <= 10, fitted
+    left_out = [
+        _held_with_a_gain_off(s, *gain_off, p_gap=0.1, offset=4e-4, lock_offset_walk=0)
+        for s in seeds
+    ]
+    assert sum(knots for _, knots, _ in left_out) >= 25, (left_out, fitted)
     # like the gain's, no part of the in-process tracker (its power pins the level)
     p = PhaseTracker(make_config(5, "hard", "test"), seed=1).params
     assert level_prior(p, gain_prior(p, 0, p.window)) == 0.0

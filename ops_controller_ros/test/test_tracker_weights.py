@@ -69,20 +69,21 @@ def _hold_with_power_from_the_trace(power_weight: float, gain: float, seed: int)
     return float(np.mean(list(_held_with_power_from_the_trace(power_weight, gain, seed))))
 
 
-def _holds_at_most(runs: list, decided) -> list[float]:
+def _holds_at_most(runs: list, decided, low: float = 0.0) -> list[float]:
     """Upper bounds of the runs' shares held (each run: readings held so far plus every reading
     it has left, over 300), the runs stepped together a reading at a time until
     ``decided(bounds)``: a run's share can only be lower than its bound, so a claim that its
-    shares are low enough holds once it holds for the bounds. Undecided, the runs go to their end
-    and the bounds are the shares themselves."""
+    shares are low enough holds once it holds for the bounds. A run whose bound is below ``low``
+    is stepped no further (a lost tracker's searches are the costly readings). Undecided, the
+    runs go to their end and the bounds are the shares themselves."""
     held = [0] * len(runs)
     left = [HELD_READINGS] * len(runs)
     while True:
         bounds = [(h + n) / HELD_READINGS for h, n in zip(held, left, strict=True)]
-        if decided(bounds) or not any(left):
+        if decided(bounds) or not any(n and b >= low for n, b in zip(left, bounds, strict=True)):
             return bounds
         for i, run in enumerate(runs):
-            if left[i]:
+            if left[i] and bounds[i] >= low:
                 held[i] += next(run)
                 left[i] -= 1
 
@@ -92,24 +93,23 @@ def test_a_power_computed_from_the_trace_is_weighed_out():
     as an independent detector it pulled the fits off the stack (seeds 8401-8404: 25-53 % of
     readings >= 0.95); weighed 0 the tracker holds on the slot energies. Since the fits found a
     detector noisy (the misfit of the power, new in every reading as the excursions move, counts
-    as noise there), 4 % costs little (seeds 71-74: weighed 1 0.98 / 1.00 / 0.59 / 1.00 on one
-    CPU, 1.00 / 1.00 / 0.96 / 1.00 on another), so the test takes a full scale 8 % low: weighed 1
-    1.00 / 0.80 / 0.05 / 0.94 (seeds 75-78: 1.00 / 1.00 / 0.98 / 1.00), weighed 0 1.00 each.
-    The weighed-in runs stop once their upper bounds decide both comparisons (_holds_at_most;
-    the messages then show the bounds): here about reading 175 of 400, at 60 readings lost by
-    one run, in 40 % of the time."""
+    as noise there), 4 % costs little, so the test takes a full scale 8 % low.
+
+    Weighed in, whether a run loses the stack is one chaotic trajectory: a change of the fits in
+    the last bits (the order of a sum) turns a run of 1.00 into one of 0.06 and back. So the
+    claims are counts over seeds with a margin. Measured over the numpy and the compiled fits,
+    and with the readings jittered by 1e-12 (4 trajectories of each seed): weighed 0, every run
+    of seeds 71-80 1.00; weighed 1, 3-4 of seeds 73-80 below 0.9 (79 and 80 in every
+    trajectory: 0.78, 0.04-0.21; 73 in 3 of 4). The weighed-in runs stop once two of them have
+    lost a tenth of their readings, each as soon as it has (_holds_at_most; the message then
+    shows the bounds); their first 100 readings are most of the test's time."""
     assert TrackerParams().power_weight == 1.0  # a simulator's detector: weighed in full
-    seeds = (71, 72, 73, 74)
-    weighed_out = [_hold_with_power_from_the_trace(0.0, 1.08, seed) for seed in seeds]
+    weighed_out = [_hold_with_power_from_the_trace(0.0, 1.08, seed) for seed in range(71, 81)]
     assert min(weighed_out) >= 0.9, weighed_out
 
     def decided(weighed_in: list[float]) -> bool:
-        return (
-            np.mean(weighed_out) >= np.mean(weighed_in) + 0.05
-            and min(weighed_out) >= min(weighed_in) + 0.2
-        )
+        return sum(held < 0.9 for held in weighed_in) >= 2
 
-    runs = [_held_with_power_from_the_trace(1.0, 1.08, seed) for seed in seeds]
-    weighed_in = _holds_at_most(runs, decided)
-    assert np.mean(weighed_out) >= np.mean(weighed_in) + 0.05, (weighed_out, weighed_in)
-    assert min(weighed_out) >= min(weighed_in) + 0.2, (weighed_out, weighed_in)
+    runs = [_held_with_power_from_the_trace(1.0, 1.08, seed) for seed in range(73, 81)]
+    weighed_in = _holds_at_most(runs, decided, low=0.9)
+    assert decided(weighed_in), (weighed_out, weighed_in)
