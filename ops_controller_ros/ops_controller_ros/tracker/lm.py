@@ -11,7 +11,11 @@ normal equations, the costs) run in another order and differ from numpy's in the
 The start ``s`` of a problem reads its own rows of the per-start arrays (``prior_w``,
 ``prior_mean``; ``walk`` and ``walk_normal`` where each start has its own, a knot test's, else
 their single row). Signatures are declared, so the kernels compile (or load from numba's cache)
-when this module is imported, not in a reading.
+when this module is imported, not in a reading: the first import after a change of this file
+compiles them (about 20 s of CPU), later ones load them from numba's cache (its ``__pycache__``
+beside this file, or where the tree is not writable the user's cache directory; writes there
+are atomic, so processes that compile at once are safe). Where no cache directory is writable
+they compile at every import.
 """
 
 from __future__ import annotations
@@ -22,9 +26,32 @@ except ImportError as exc:  # pragma: no cover - the requirements install it
     raise ImportError(
         "the tracker's path fits need numba (requirements/python.txt; `make setup` installs it)"
     ) from exc
+import warnings
+
 import numpy as np
 
-_KERNEL = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+def _probe():  # pragma: no cover - never called: its decoration finds numba's cache directory
+    return 0
+
+
+def _cacheable() -> bool:
+    """Whether numba finds a writable cache directory for this file (its decoration of a
+    function here raises where it does not)."""
+    try:
+        numba.njit(cache=True)(_probe)
+    except RuntimeError:
+        warnings.warn(
+            "numba finds no writable cache directory for the tracker's kernels: they compile at "
+            "every import (set NUMBA_CACHE_DIR to keep them)",
+            stacklevel=2,
+        )
+        return False
+    return True
+
+
+_KERNEL = {"nogil": True, "error_model": "numpy"}  # (the helpers: compiled into the entries)
+_ENTRY = {**_KERNEL, "cache": _cacheable()}  # the kernels fit.py calls
 _W1, _W2, _W3, _W4 = (
     numba.float64[:],
     numba.float64[:, :],
@@ -287,13 +314,13 @@ def _step1(x, s, e, jac, walk_normal, prior_w, prior_mean, lam, u_centred, y, fl
 _FIXED = (_R3, _R2, _R2, _R1, _R2, _R2, _I, _B, _I, _I, _F)  # walk_normal, ..., r_sd
 
 
-@numba.njit(numba.void(_R2, _R2, _R2, _I, _B, _F, _F, _B, _W2), **_KERNEL)
+@numba.njit(numba.void(_R2, _R2, _R2, _I, _B, _F, _F, _B, _W2), **_ENTRY)
 def points(z, u, u_centred, nz, ratio, h, period_fs, with_jacobian, out):
     """:func:`_points` of starts z into ``out``."""
     _points(z, u, u_centred, nz, ratio, h, period_fs, with_jacobian, out)
 
 
-@numba.njit(numba.void(_R2, _R1, _R2, _I1, _I, _I, _R2, _F, _W3, _W4), **_KERNEL)
+@numba.njit(numba.void(_R2, _R1, _R2, _I1, _I, _I, _R2, _F, _W3, _W4), **_ENTRY)
 def residuals(energies, power, z, starts, gain, level, y, h, err, jac):
     """:func:`_residuals1` of starts z (A, D) from the physics' output at their
     :func:`points` into err[starts[a]] (K, R), and where ``jac`` is not empty the Jacobian
@@ -310,7 +337,7 @@ def residuals(energies, power, z, starts, gain, level, y, h, err, jac):
             _residuals1(energies, power, row0, z[a], gain, level, y, h, err[s], none, False)
 
 
-@numba.njit(numba.void(_R2, _I1, _R3, _R3, _R2, _R2, _F, _F, _W1, _W1), **_KERNEL)
+@numba.njit(numba.void(_R2, _I1, _R3, _R3, _R2, _R2, _F, _F, _W1, _W1), **_ENTRY)
 def objective(z, starts, err, walk, prior_w, prior_mean, r_sd, w_sd, cost, data_cost):
     """The whole cost of starts z (A, D) into cost[s] and the readings' mean square into
     data_cost[s], s = starts[a] (its residuals err[s], :func:`_objective1`)."""
@@ -319,7 +346,7 @@ def objective(z, starts, err, walk, prior_w, prior_mean, r_sd, w_sd, cost, data_
         cost[s], data_cost[s] = _objective1(z[a], s, err[s], walk, prior_w, prior_mean, r_sd, w_sd)
 
 
-@numba.njit(numba.void(_R2, _I1, _R3, _R4, *_FIXED, _W2, _R2, _F, _F, _B, _W2), **_KERNEL)
+@numba.njit(numba.void(_R2, _I1, _R3, _R4, *_FIXED, _W2, _R2, _F, _F, _B, _W2), **_ENTRY)
 def trial_step(
     z,
     starts,
@@ -360,7 +387,7 @@ def trial_step(
 
 @numba.njit(
     numba.boolean(_R2, _R1, _R2, _I, _I, _I, _R2, _F, _R3, _R2, _R2, _F, _F, _W2, _W3, _W4, _W2),
-    **_KERNEL,
+    **_ENTRY,
 )
 def accept_one(
     energies,
