@@ -82,9 +82,14 @@ def draw(items: list[dict], path: Path, reach: float) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), sharey=True)
-    for it in items:
+    # One mode and rig for all (a side-by-side run of the recipes): a colour per run; else a
+    # colour per mode (the lab rig its own), the recipe told by the line.
+    one_kind = len({(it["mode"], bool(it["rig"])) for it in items}) == 1
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, it in enumerate(items):
         style = "-" if it["recipe"].startswith("dagger") else ":"
         color = LAB_COLOR if it["rig"] else COLORS.get(it["mode"], "gray")
+        color = cycle[k % len(cycle)] if one_kind else color
         xs_m = [r["minutes"] for r in it["curve"]]
         xs_s = [max(r["env_steps"], 1) for r in it["curve"]]
         ys = [r["mean"] for r in it["curve"]]
@@ -102,7 +107,10 @@ def draw(items: list[dict], path: Path, reach: float) -> None:
     axes[1].set_xlabel("environment steps (every simulated step)")
     axes[0].set_ylabel("test final P_N / P_max (mean)")
     axes[1].legend(fontsize=7, loc="lower right")
-    fig.suptitle("Rig-view students (DAgger, solid) against fast SAC (dotted)")
+    modes = sorted({it["mode"] for it in items})
+    fig.suptitle(
+        f"Rig-view students (DAgger, solid) against training by reward (dotted), {', '.join(modes)}"
+    )
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
