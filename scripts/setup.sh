@@ -133,4 +133,10 @@ else
   say "workspace up to date"
 fi
 
+# --- 5. Compiled kernels ----------------------------------------------------------------------
+# The tracker's path fits are numba kernels, compiled at their first import (~15 s) and cached
+# beside their source: compiled here once, not in the first node or test that loads the tracker.
+run_logged "compiling the tracker's kernels" "$LOG_DIR/kernels.log" \
+  bash -c 'source "$1/setup.bash" && python -c "import ops_controller_ros.tracker.lm"' _ "$ROOT"
+
 say "done. Next: source setup.bash"
