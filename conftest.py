@@ -93,40 +93,42 @@ def observer():
     obs.close()
 
 
-#: The longest modules, longest first: each worker's time in the suite (pytest-xdist, two workers,
-#: --dist loadfile), measured 2026-11-29 on the 2-core machine while other work ran on it.
+#: The longest modules, longest first: each module's time in the suite (pytest-xdist, two workers,
+#: --dist loadfile), measured 2026-11-29 on the idle 2-core machine (`bash scripts/test.sh
+#: --junitxml=FILE` in a fresh clone; "~": estimated for modules changed since).
 #: Handed out longest first, the workers finish together (longest-processing-time order: a
 #: simulation of the scheduler on the measured times gave 1,338 s against 1,438 s for xdist's own
 #: order, by the number of tests in a module, which scripts/test.sh turns off with
 #: --no-loadscope-reorder). A module not listed comes after them.
 LONGEST_MODULES = (
-    "test_train_cli.py",  # 354 s
-    "test_tracker.py",  # 239
-    "test_policy_runner.py",  # 172
-    "test_benchmark_cli.py",  # 154
-    "test_sim_nodes.py",  # 109
-    "test_ray_cluster.py",  # 101
-    "test_benchmark_ray.py",  # 99
-    "test_tracker_noisy.py",  # 95
-    "test_bag.py",  # 80
-    "test_lossy_link.py",  # 73
-    "test_train_ros.py",  # 68
-    "test_tracker_weights.py",  # 66
-    "test_tracker_node.py",  # 63
-    "test_ros2cli.py",  # 53
-    "test_rig_node.py",  # 49
-    "test_demo.py",  # 46
-    "test_latency_check.py",  # 44
-    "test_bridge_env.py",  # 42
-    "test_shipped_models.py",  # 36
-    "test_hostile.py",  # 36
-    "test_tracker_first_lock.py",  # 33
-    "test_executors_over_dds.py",  # 32
-    "test_two_hosts.py",  # 31
-    "test_rig_calibration.py",  # 29
-    "test_setpoint_range.py",  # 29
-    "test_time_base.py",  # 24
-    "test_threads.py",  # 20
+    "test_tracker.py",  # 113 s (idle fresh-clone run, --junitxml)
+    "test_policy_runner.py",  # 96
+    "test_sim_nodes.py",  # 93
+    "test_benchmark_cli.py",  # 83
+    "test_ray_cluster.py",  # 76
+    "test_lossy_link.py",  # 69
+    "test_train_cli.py",  # 63
+    "test_bag.py",  # 61
+    "test_tracker_weights.py",  # ~50
+    "test_benchmark_ray.py",  # 44
+    "test_train_ros.py",  # 42
+    "test_tracker_noisy.py",  # 41
+    "test_ros2cli.py",  # 37
+    "test_rig_node.py",  # 36
+    "test_executors_over_dds.py",  # 33
+    "test_bridge_env.py",  # 33
+    "test_tracker_node.py",  # 32
+    "test_demo.py",  # 31
+    "test_recipes.py",  # ~25
+    "test_two_hosts.py",  # 24
+    "test_hostile.py",  # 20
+    "test_rig_calibration.py",  # 19
+    "test_latency_check.py",  # 15
+    "test_tracker_first_lock.py",  # 15
+    "test_calibration.py",  # 14
+    "test_shipped_models.py",  # 13
+    "test_setpoint_range.py",  # 12
+    "test_time_base.py",  # 11
 )
 _RANK = {name: rank for rank, name in enumerate(LONGEST_MODULES)}
 
