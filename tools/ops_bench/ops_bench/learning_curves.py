@@ -44,6 +44,13 @@ def read_curve(folder: Path) -> list[dict]:
     return rows
 
 
+def _rig_of(meta: dict) -> str:
+    """The lab rig ("lab") for a run on it or on rigs drawn from it; "" for the ideal rig, also
+    when only the latency was drawn (an ideal rig whose commands may come a step late)."""
+    drawn = set(meta.get("rig_randomize") or {}) - {"latency_steps"}
+    return "lab" if drawn or (meta.get("rig") or {}).get("realism") else ""
+
+
 def describe(label: str, folder: Path) -> dict:
     """One run's curve and figures."""
     meta = json.loads((folder / "metadata.json").read_text())
@@ -54,7 +61,7 @@ def describe(label: str, folder: Path) -> dict:
         "folder": str(folder.relative_to(REPO) if folder.is_relative_to(REPO) else folder),
         "recipe": meta.get("recipe", meta.get("algo", "?")),
         "mode": meta.get("mode", "?"),
-        "rig": "lab" if meta.get("rig_randomize") or (meta.get("rig") or {}).get("realism") else "",
+        "rig": _rig_of(meta),
         "curve": curve,
         "best": best,
         "training_wall_s": meta.get("training_wall_s"),
