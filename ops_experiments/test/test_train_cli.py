@@ -40,7 +40,7 @@ def run_command(exe: str, *args, timeout=150) -> subprocess.CompletedProcess:
     )
 
 
-def run(exe: str, *args, timeout=None) -> subprocess.CompletedProcess:
+def run(exe: str, *args) -> subprocess.CompletedProcess:
     """The same command's ``run(argv)`` (what its ``main`` calls) in this process, its output
     captured: no new interpreter importing torch and stable-baselines3 again (3-5 s each). The
     command lines themselves run in new processes in ``trained`` and the Ctrl-C test."""

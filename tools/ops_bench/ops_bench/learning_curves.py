@@ -22,7 +22,8 @@ import shlex
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[3]
+from . import REPO
+
 PAPER_TD3_STEPS = 300_000
 DEFAULT_SAC = ("n5_easy", "n5_medium", "n5_hard")
 COLORS = {"easy": "tab:green", "medium": "tab:orange", "hard": "tab:red", "extreme": "tab:purple"}
@@ -95,8 +96,10 @@ def draw(items: list[dict], path: Path, reach: float) -> None:
     cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, it in enumerate(items):
         style = "-" if it["recipe"].startswith("dagger") else ":"
-        color = LAB_COLOR if it["rig"] else COLORS.get(it["mode"], "gray")
-        color = cycle[k % len(cycle)] if one_kind else color
+        if one_kind:
+            color = cycle[k % len(cycle)]
+        else:
+            color = LAB_COLOR if it["rig"] else COLORS.get(it["mode"], "gray")
         xs_m = [r["minutes"] for r in it["curve"]]
         xs_s = [max(r["env_steps"], 1) for r in it["curve"]]
         ys = [r["mean"] for r in it["curve"]]

@@ -32,11 +32,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-from . import learning_curves
+from . import REPO, learning_curves
 from .processes import executable
 from .ship_model import learning_curve
 
-REPO = Path(__file__).resolve().parents[3]
 RECIPES = REPO / "ops_experiments" / "ops_experiments" / "yaml" / "recipes.yaml"
 
 
@@ -153,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             failed.append(name)
             print(f"[recipes] {name}: failed (exit {code})", file=sys.stderr, flush=True)
     runs = [name for name in recipes if finished(out / name)]
+    out.mkdir(parents=True, exist_ok=True)
     record = {"mode": args.mode, "minutes": args.minutes, "runs": runs}
     record["load_average"] = os.getloadavg()
     (out / "runs.json").write_text(json.dumps(record, indent=2))
