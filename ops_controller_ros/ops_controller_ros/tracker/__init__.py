@@ -27,7 +27,9 @@ fed forward) plus a small known excursion.
   (with each stage's drift as well where a static fit does not explain the window). The estimate
   is accepted only when its residual is within ``residual_tolerance`` (plus the expected detector
   noise); otherwise the controller keeps its set-points, keeps dithering and searches again (it
-  never moves on an estimate it does not trust).
+  never moves on an estimate it does not trust). A search too large for one reading (N = 7,
+  :mod:`.work`) runs ``spread_rows`` a reading and refines its estimate on the window as it is
+  when it ends.
 * **Track**: each reading re-fits the window as a path, a moving-horizon estimate: the errors at
   every reading of the window and one drift per stage, most probable given the readings, a random
   walk between readings (``walk_cycles`` per step; by default six times the model's jitter, so a

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..calibration import ModelCalibration
-from . import fit, knots
+from . import fit, knots, work
 from .acquisition import Search, acquire, fit_detector_to, relock_drifts
 from .commands import Loop, excursion, hold_dither
 from .knots import KnotJob, Knots
@@ -387,11 +387,16 @@ class PhaseTracker:
         tolerance is tracked from, carried on by its drift from the step the search started."""
         p, loop, rig = self.params, self.loop, self.rig
 
-        def start():
-            window, calibration = self.window, self.calibration
-            return acquire(rig, p, self._rng, window, calibration, self._tolerance, loop.step)
+        def start(spread: bool):
+            window, calibration, tol = self.window, self.calibration, self._tolerance
+            return acquire(rig, p, self._rng, window, calibration, tol, loop.step, spread)
 
-        found = self.search.step(p, start)
+        if self.watch.spread:
+            return  # the latency check decides the pairing first (its work is the reading's)
+        whole = work.search_rows(p, self.stage, len(self.window)) * rig.work_scale
+        found = self.search.step(p, start, whole)
+        if self.search.rows is not None:
+            self.watch.wait_for(2 * int(np.ceil(whole / self.search.rows)))
         if found is None:
             return
         self.lock.residual = found.residual

@@ -67,7 +67,8 @@ def _split(z: np.ndarray, drift, n: int):
 
 def refine(stacker, period_fs, x, u, y, age, drift, iterations: int):
     """Batched Levenberg-Marquardt from starts x (M, N), a generator that yields after each
-    iteration and returns (x, cost) (``x, cost = yield from refine(...)``).
+    iteration (the rows it evaluated) and returns (x, cost) (``x, cost = yield from
+    refine(...)``).
 
     ``drift`` (N,) is held fixed; with ``drift=None`` each start's drift is fitted too (x is
     then (M, 2N): the errors now and their drift per step)."""
@@ -97,7 +98,7 @@ def refine(stacker, period_fs, x, u, y, age, drift, iterations: int):
         x = np.where(better[:, None], trial, x)
         c = np.where(better, new_cost, c)
         lam = np.where(better, lam * 0.3, lam * 4.0)
-        yield
+        yield m * (dim + 2) * u.shape[0]  # rows evaluated (tracker.work)
     return x, c
 
 

@@ -16,6 +16,7 @@ from collections import deque
 import numpy as np
 
 from .fit import cost, refine
+from .work import advance, refine_rows, scaled, spread_rows
 
 #: A candidate wins if its residual is at most this share of the told latency's.
 MARGIN = 0.25
@@ -29,6 +30,8 @@ KEEP = 8
 #: before the window starts over: a search misses the rig's pairing in about one check in
 #: eight when the readings are flat (an acquisition probing about one point).
 RETRIES = 2
+#: Random starts scored per unit of work of a check spread over readings.
+CHUNK = 64
 
 
 def pair_readings(commands, readings, latency: int):
@@ -53,7 +56,7 @@ def pair_readings(commands, readings, latency: int):
 
 
 def _finish(generator):
-    """Run a :func:`.fit.refine` generator to its end; its return value."""
+    """Run a generator to its end; its return value."""
     while True:
         try:
             next(generator)
@@ -62,34 +65,65 @@ def _finish(generator):
 
 
 def pairing_cost(
-    stacker, period_fs, window, tolerance, rng, candidates=CANDIDATES, keep=KEEP
-) -> float:
+    stacker, period_fs, window, tolerance, rng, candidates=CANDIDATES, keep=KEEP, chunk=None
+):
     """The smallest mean squared residual that a global search finds for one pairing: static
-    errors first, then errors and a drift per stage from the best starts."""
+    errors first, then errors and a drift per stage from the best starts. A generator that
+    yields the rows of each unit of work (unweighed, :mod:`.work`; the random starts scored
+    ``chunk`` at a time, None: all at once) and returns it."""
     u, y, age = window
     n = u.shape[1]
     start = rng.uniform(-0.5, 0.5, size=(candidates, n))
-    best = start[np.argsort(cost(stacker, period_fs, start, u, y, age, np.zeros(n)))[:keep]]
-    x, c = _finish(refine(stacker, period_fs, best, u, y, age, np.zeros(n), 8))
+    scores = []
+    chunk = chunk or candidates
+    for i in range(0, candidates, chunk):
+        scores.append(cost(stacker, period_fs, start[i : i + chunk], u, y, age, np.zeros(n)))
+        yield len(scores[-1]) * len(u)
+    best = start[np.argsort(np.concatenate(scores))[:keep]]
+    x, c = yield from refine(stacker, period_fs, best, u, y, age, np.zeros(n), 8)
     if c.min() <= tolerance:
         return float(c.min())
     z = np.concatenate([x, np.zeros_like(x)], axis=1)
-    _, c2 = _finish(refine(stacker, period_fs, z, u, y, age, None, 6))
+    _, c2 = yield from refine(stacker, period_fs, z, u, y, age, None, 6)
     return float(min(c.min(), c2.min()))
 
 
+def candidate_rows(n: int, readings: int = CHECK_READINGS) -> int:
+    """The most work of one candidate's :func:`pairing_cost`, unweighed (:mod:`.work`)."""
+    return (
+        CANDIDATES * readings
+        + refine_rows(KEEP, n, readings, 8)
+        + refine_rows(KEEP, 2 * n, readings, 6)
+    )
+
+
 def measure_latency(
-    stacker, period_fs, commands, readings, told: int, tolerance: float, rng, longest: int = 4
+    stacker,
+    period_fs,
+    commands,
+    readings,
+    told: int,
+    tolerance: float,
+    rng,
+    longest: int = 4,
+    scale: float = 1.0,
 ):
-    """A generator, one candidate latency per step (``yield``), that returns (the latency the
-    readings fit, {candidate: residual}); the latency is None when no candidate other than
-    ``told`` fits clearly better (within ``tolerance`` and by :data:`MARGIN`)."""
+    """A generator that returns (the latency the readings fit, {candidate: residual}); the
+    latency is None when no candidate other than ``told`` fits clearly better (within
+    ``tolerance`` and by :data:`MARGIN`). With ``scale`` (the rows' weight, :mod:`.work`) it
+    yields the rows of each unit of work; without (None), once per candidate latency."""
     costs = {}
     for latency in range(max(longest, told + 2) + 1):
         window = pair_readings(commands, readings, latency)
         if window is not None and len(window[0]) >= 6:
-            costs[latency] = pairing_cost(stacker, period_fs, window, tolerance, rng)
-        yield
+            chunk = None if scale is None else CHUNK
+            job = pairing_cost(stacker, period_fs, window, tolerance, rng, chunk=chunk)
+            if scale is None:
+                costs[latency] = _finish(job)
+            else:
+                costs[latency] = yield from scaled(job, scale)
+        if scale is None:
+            yield
     if told not in costs:
         return None, costs
     best = min(costs, key=costs.get)
@@ -124,6 +158,18 @@ class LatencyWatch:
         self.dim: deque = deque(maxlen=max(p.latency_check_after, 1))
         self.retries = 0
         self.job = None
+        self.rows = None  # the check's work per reading (None: one candidate a reading)
+
+    def wait_for(self, readings: int) -> None:
+        """Count dim readings over at least ``readings`` (a search spread over readings: the
+        readings it takes are dim, and a check would start before it can lock)."""
+        if readings > self.dim.maxlen:
+            self.dim = deque(self.dim, maxlen=readings)
+
+    @property
+    def spread(self) -> bool:
+        """A check spread over readings is under way (a search waits for it)."""
+        return self.job is not None and self.rows is not None
 
     def command(self, step: int, u: np.ndarray) -> None:
         """A command given after the reading at ``step``."""
@@ -142,21 +188,22 @@ class LatencyWatch:
         if not p.latency_check_after:
             return None
         if self.job is not None:
-            try:
-                next(self.job)
-            except StopIteration as done:
-                self.job = None
-                found, self.costs = done.value
-                self.retries = self.retries + 1 if found is None else 0
-                if found is not None or self.retries > RETRIES:
-                    self.dim.clear()
-                    self.retries = 0
-                return found
-            return None
+            finished, value = advance(self.job, self.rows, units=1 if self.rows is None else 0)
+            if not finished:
+                return None
+            self.job = None
+            found, self.costs = value
+            self.retries = self.retries + 1 if found is None else 0
+            if found is not None or self.retries > RETRIES:
+                self.dim.clear()
+                self.retries = 0
+            return found
         self.dim.append(power < p.latency_check_below)
-        full = len(self.dim) == p.latency_check_after
-        if full and 4 * sum(self.dim) >= 3 * p.latency_check_after:
+        count = self.dim.maxlen
+        if len(self.dim) == count and 4 * sum(self.dim) >= 3 * count:
             self.checks += 1
+            # one candidate latency a reading, or (N = 7) spread_rows of work a reading
+            self.rows = spread_rows(p, candidate_rows(rig.stage) * rig.work_scale)
             self.job = measure_latency(
                 rig.fit_stacker,
                 rig.period_fs,
@@ -166,6 +213,7 @@ class LatencyWatch:
                 tolerance(),
                 rng,
                 p.latency_check_longest,
+                None if self.rows is None else rig.work_scale,
             )
         return None
 

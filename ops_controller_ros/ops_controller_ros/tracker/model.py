@@ -14,6 +14,7 @@ from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
 from . import fit
 from .params import TrackerParams
 from .weights import WeightedStacker, source_noise_weights
+from .work import scaled
 
 
 def at_wavelength(stacker, wavelength_nm: float):
@@ -152,9 +153,10 @@ class RigModel:
         return fit.cost(self.fit_stacker, self.period_fs, x, u, self.weighed(y), age, drift)
 
     def refine(self, x, u, y, age, drift, iterations: int):
-        """:func:`.fit.refine` on the model now (a generator)."""
+        """:func:`.fit.refine` on the model now (a generator; its rows weighed, .work)."""
         y = self.weighed(y)
-        return fit.refine(self.fit_stacker, self.period_fs, x, u, y, age, drift, iterations)
+        job = fit.refine(self.fit_stacker, self.period_fs, x, u, y, age, drift, iterations)
+        return scaled(job, self.work_scale)
 
     def slot_residuals(self, u, path, y) -> np.ndarray:
         """The slot energies predicted at the path (K, N) minus those read (K, S)."""

@@ -140,6 +140,9 @@ class TrackerParams:
     candidates: int = _declare(512, "random delay vectors scored by the global search", 1)
     refine: int = _declare(8, "best candidates refined by Levenberg-Marquardt", 1)
     iterations: int = _declare(12, "LM iterations of a global refinement", 1)
+    polish_iterations: int = _declare(
+        4, "LM iterations that bring a search spread over readings up to the present window", 1
+    )
     track_iterations: int = _declare(3, "LM iterations per reading while tracking", 1)
     walk_cycles: float | None = _declare(
         None,
@@ -319,12 +322,27 @@ class TrackerParams:
     )
     recover_readings: int = _declare(4, "readings after a failed fit before a local re-fit", 2)
     acquire_drift: bool = _declare(True, "fit each stage's drift too when a static fit fails")
-    # The global search (about 26 units at N = 5: 4 of scoring, then Levenberg-Marquardt
-    # iterations) may be spread over readings, this many units per reading (0: all in the
-    # reading that starts it; the commands keep their known excursions meanwhile). Spread, it
-    # fits a window that is readings old and carries the estimate forward by the fitted drift,
-    # which loses episodes in hard mode (docs/tracker.md, "One tracker for the node and
-    # evaluate").
+    # The global search and each candidate of the latency check run whole in the reading that
+    # starts them while their work (tracker.work: rows evaluated, weighed to N = 5) is within
+    # search_work_budget: at N <= 5 (a search is about 30,000 rows, some 24 ms). Beyond it (N = 7:
+    # about 570,000, a latency candidate 350,000) they run spread_rows a reading (about 8 ms),
+    # the commands keeping their known excursions meanwhile, and a spread search refines what it
+    # found on the window as it is when it ends (polish_iterations).
+    search_work_budget: float = _declare(
+        100000.0,
+        "most work of a global search or latency-check candidate run in one reading, rows "
+        "evaluated at N = 5 (0: no limit)",
+        0.0,
+    )
+    spread_rows: float = _declare(
+        8000.0,
+        "work per reading of a search spread over readings, rows at N = 5",
+        1.0,
+        node=True,
+    )
+    # search_units and step_budget_ms spread any search by a count or a time: a search spread
+    # so, at N = 5, lost episodes in hard mode before it refined its estimate on the present
+    # window (docs/tracker.md, "One tracker for the node and evaluate").
     search_units: int = _declare(
         0, "units of the global search per reading (0: all in one reading)", 0, 10000, node=True
     )

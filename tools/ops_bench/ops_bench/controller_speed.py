@@ -38,6 +38,20 @@ from ops_bench.docs import publish
 
 TITLE = "## Compute per reading, by controller"
 CONTROLLERS = ("tracker", "spgd", "models")
+#: How to read the tracker's rows (what its code does, not what a run measured).
+READING = [
+    "**Reading the tracker's rows.** Its largest readings are its global search, once a lock. "
+    "At N <= 5 the search runs whole "
+    "in the reading that starts it (about 30,000 rows of work, `tracker/work.py`). At N = 7 it "
+    "is about 570,000 rows and a candidate of the latency check about 350,000: both run "
+    "`spread_rows` (8,000) a reading, the search over some 50 readings, and a spread search "
+    "refines what it found on the readings that came meanwhile before the tracker takes it "
+    '(docs/tracker.md, "Acquire"). The knot test is held to `work_budget` per reading the '
+    "same way. Hard mode takes a whole-cycle move every 10 readings; the period fits of the "
+    "readings after each move adopt a new wavelength, which retunes the model's stacker by a "
+    "copy (`tracker/model.py`, `at_wavelength`).",
+    "",
+]
 
 
 def model_dirs(stage: int) -> list[Path]:
@@ -189,6 +203,7 @@ def main(argv=None) -> int:
         "",
         *table(rows),
         "",
+        *READING,
     ]
     publish(title, lines, write=args.write)
     return 0
