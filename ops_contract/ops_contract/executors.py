@@ -77,16 +77,36 @@ def spin(executor, node: Node) -> None:
         executor.spin_until_future_complete(Future(), EVENTS_TURN_S)
 
 
+def guarded(node: Node, callback: Callable) -> Callable:
+    """``callback`` for a timer or subscription of ``node``, quiet once the context is shut
+    down: Ctrl-C or SIGTERM shuts it down from the signal handler, while a callback may be
+    publishing, which then raises ("publisher's context is invalid"), and the events executor
+    logs that with a traceback. Raised while the context is still up, an error goes on as
+    before."""
+
+    def call(*args):
+        try:
+            return callback(*args)
+        except Exception:
+            if node.context.ok():
+                raise
+            return None
+
+    return call
+
+
 def subscribe_with_info(
     node: Node, msg_type, topic: str, callback: Callable, qos, **kwargs
 ) -> Subscription:
     """``node.create_subscription`` for ``callback(msg, info)`` (``info``: the message's
     ``MessageInfo`` dict: sequence numbers, source timestamp) under either executor."""
 
+    quiet = guarded(node, callback)
+
     def either(msg, info=None):
         if info is None and isinstance(msg, tuple):  # the events executor's one argument
             msg, info = msg
-        return callback(msg, info)
+        return quiet(msg, info)
 
     subscription = node.create_subscription(msg_type, topic, either, qos, **kwargs)
     # ``either`` can be called with the message alone, so rclpy took it for a message-only

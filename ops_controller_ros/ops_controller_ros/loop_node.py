@@ -32,7 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
-from ops_contract.executors import subscribe_with_info
+from ops_contract.executors import guarded, subscribe_with_info
 from ops_contract.node_params import ParamSpec, declare_all
 from ops_contract.observation import pulse_energies_from_trace
 from ops_contract.rig_params import RIG_PARAMS, rig_config, rig_values
@@ -147,8 +147,8 @@ class ControllerLoopNode(Node):
         subscribe_with_info(self, Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
         # Re-sends are due a few sample periods after a command (CommandTracker.resend_after).
-        self.create_timer(0.01, self._watchdog)
-        self.create_timer(self._log_period, self._log_progress)
+        self.create_timer(0.01, guarded(self, self._watchdog))
+        self.create_timer(self._log_period, guarded(self, self._log_progress))
         told = " ".join(f"{k}={val}" for k, val in self.rig.items())
         self.get_logger().info(
             f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)} (rig: {told})"

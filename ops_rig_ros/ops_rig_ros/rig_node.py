@@ -19,6 +19,7 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ops_contract.command_inbox import CommandInbox
+from ops_contract.executors import guarded
 from ops_contract.node_params import declare_all
 from ops_contract.ros_interface import (
     QOS_RELIABLE,
@@ -95,8 +96,8 @@ class RigNode(Node):
         self._warned_at: dict[str, float] = {}
         self._parked = False
 
-        self.create_timer(1.0 / self.rate_hz, self._tick)
-        self.create_timer(v["diagnostics_period_s"], self._publish_diagnostics)
+        self.create_timer(1.0 / self.rate_hz, guarded(self, self._tick))
+        self.create_timer(v["diagnostics_period_s"], guarded(self, self._publish_diagnostics))
         self.get_logger().info(
             f"rig stage={self.stage} rate={self.rate_hz:g} Hz config={v['config']} "
             f"scope={self.rig.source.describe()} "

@@ -26,6 +26,7 @@ from ops_contract.config import (
     VIBRATIONS,
     make_config,
 )
+from ops_contract.executors import guarded
 from ops_contract.node_params import (
     DIAGNOSTICS_PERIOD_SPEC,
     ParamSpec,
@@ -274,11 +275,13 @@ class SimNode(Node):
             self._timer = None
         self._rate_window = None  # (monotonic time, steps) at the start of the rate window
         if not self._values["lockstep"]:
-            self._timer = self.create_timer(1.0 / self._values["rate_hz"], self._step)
+            self._timer = self.create_timer(
+                1.0 / self._values["rate_hz"], guarded(self, self._step)
+            )
         if self._diag_timer is not None:
             self.destroy_timer(self._diag_timer)
         self._diag_timer = self.create_timer(
-            self._values["diagnostics_period_s"], self._publish_diagnostics
+            self._values["diagnostics_period_s"], guarded(self, self._publish_diagnostics)
         )
 
     def _step(self):

@@ -45,6 +45,10 @@ class Search:
     rows: float | None = None  # its share of a reading's work (None: all at once; .work)
     acquisitions: int = 0  # estimates accepted
 
+    def readings(self, whole_rows: float) -> int:
+        """The readings a search of ``whole_rows`` takes at the share now (0: run whole)."""
+        return 0 if self.rows is None else int(np.ceil(whole_rows / self.rows))
+
     def step(self, p: TrackerParams, start: Callable[[], Generator], whole_rows: float):
         """Advance the search (``start(spread)`` begins one, whose whole work is ``whole_rows``) by
         this reading's share; its outcome once it ends. A search within ``search_work_budget``

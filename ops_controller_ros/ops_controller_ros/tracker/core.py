@@ -15,6 +15,8 @@ docstring (:mod:`ops_controller_ros.tracker`) describes the method.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from ..calibration import ModelCalibration
@@ -386,17 +388,13 @@ class PhaseTracker:
         """The global search's share of this reading; an estimate it found within the
         tolerance is tracked from, carried on by its drift from the step the search started."""
         p, loop, rig = self.params, self.loop, self.rig
-
-        def start(spread: bool):
-            window, calibration, tol = self.window, self.calibration, self._tolerance
-            return acquire(rig, p, self._rng, window, calibration, tol, loop.step, spread)
-
+        args = (self._rng, self.window, self.calibration, self._tolerance, loop.step)
+        start = partial(acquire, rig, p, *args)  # start(spread)
         if self.watch.spread:
             return  # the latency check decides the pairing first (its work is the reading's)
         whole = work.search_rows(p, self.stage, len(self.window)) * rig.work_scale
         found = self.search.step(p, start, whole)
-        if self.search.rows is not None:
-            self.watch.wait_for(2 * int(np.ceil(whole / self.search.rows)))
+        self.watch.wait_for(2 * self.search.readings(whole))  # (a spread search's readings)
         if found is None:
             return
         self.lock.residual = found.residual
