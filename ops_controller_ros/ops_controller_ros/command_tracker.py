@@ -76,13 +76,18 @@ class StepPairing:
         self._offsets: dict[str, int | None] = dict.fromkeys(self.TOPICS)
         self._last_power: int | None = None
 
+    def is_copy(self, topic: str, seq: int | None) -> bool:
+        """Whether the message numbered ``seq`` on ``topic`` is the copy of one already taken
+        (the latched and the best-effort subscription of ``ops/delays`` both deliver it)."""
+        return seq is not None and seq == self.latest[topic]
+
     def take(self, topic: str, seq: int | None, value=None) -> bool:
         """A message of ``topic`` (one of :data:`TOPICS`; the trace or the applied delays as
         ``value``); False for a copy of a message already taken (the latched and the
         best-effort subscription of ``ops/delays`` both deliver it): ignore it."""
-        latest = self.latest[topic]
-        if seq is not None and latest is not None and seq == latest:
+        if self.is_copy(topic, seq):
             return False
+        latest = self.latest[topic]
         if seq is not None and (latest is None or seq > latest or latest - seq > 1000):
             self.latest[topic] = seq  # (a jump back by more: a restarted publisher)
         if topic in self.KEPT:

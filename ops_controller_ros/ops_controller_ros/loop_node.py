@@ -323,8 +323,10 @@ class ControllerLoopNode(Node):
         return True
 
     def _on_delays(self, msg: Float32MultiArray, info):
-        delays = self._guard.take(TOPIC_DELAYS, delays_from_msg, msg)
         seq = sequence_number(info)
+        if self._pairing.is_copy("delays", seq):
+            return  # (every step's comes twice: a copy is not read again)
+        delays = self._guard.take(TOPIC_DELAYS, delays_from_msg, msg)
         if delays is None or not self._pairing.take("delays", seq):
             return
         self._delays = delays

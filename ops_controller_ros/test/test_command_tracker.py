@@ -135,7 +135,9 @@ def test_offsets_are_learned_and_copies_refused():
         p.take("trace", seq, seq)
         p.on_power(seq + 3)
     assert p.offset("trace") == 3 and p.kept_for("trace", 50) == 47
+    assert not p.is_copy("delays", 7)
     assert p.take("delays", 7) and not p.take("delays", 7)  # latched + best-effort copies
+    assert p.is_copy("delays", 7) and not p.is_copy("delays", 8) and not p.is_copy("delays", None)
     assert sequence_number({"publication_sequence_number": 12}) == 12
     assert sequence_number(None) is None and sequence_number({}) is None
 
