@@ -44,9 +44,10 @@ PANELS = (
 )
 CONTROLLERS = ("tracker", "spgd")
 #: The learned models of each mode: the students the README names (the hard one trained on the
-#: lab rig too), and the SAC models they replaced, for comparison.
+#: lab rig too; in easy mode the medium student, which holds it without the easy one's tail),
+#: and the SAC models they replaced, for comparison.
 MODELS = {
-    "easy": ("models/n5_easy_dagger",),
+    "easy": ("models/n5_easy_dagger", "models/n5_medium_dagger"),
     "medium": ("models/n5_medium", "models/n5_medium_dagger"),
     "hard": (
         "models/n5_hard",
