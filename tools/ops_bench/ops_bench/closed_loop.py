@@ -136,6 +136,22 @@ def start(args, log_path: Path):
         return subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
 
 
+def group_cpu_s(sid: int) -> float:
+    """CPU seconds (user and system) used so far by the live processes of session ``sid`` (a
+    process :func:`start` made leads its own; ``ros2 run`` puts the node in a process group of
+    its own within it): Linux's /proc."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # (exited meanwhile)
+        if int(fields[3]) == sid:  # fields after the name: state, ppid, pgrp, session, ...
+            total += int(fields[11]) + int(fields[12])  # utime, stime
+    return total / tick
+
+
 def stop(proc):
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGINT)

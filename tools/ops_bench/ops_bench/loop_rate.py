@@ -10,7 +10,9 @@ increasing ``rate_hz``, each rate with a fresh simulator and controller as real 
 - missed: the share of the simulator's steps that took no new command, from its own count
   (``step`` and ``steps_without_command`` in its /diagnostics, every 0.5 s here);
 - locked: the share of the readings >= 0.95 after the first one >= 0.95
-  (ops_experiments.continuous.lock_figures).
+  (ops_experiments.continuous.lock_figures);
+- CPU per step: each process group's CPU time over the window (/proc, the DDS threads too)
+  per simulator step: what bounds the rate on a machine of few cores.
 
 A rate is held when readings/s reach 90 % of it (the simulator's own warning threshold), at most
 1 % of the steps missed their command, and, for the tracker and the policy, at least 99 % of
@@ -33,7 +35,7 @@ import sys
 import time
 from pathlib import Path
 
-from ops_bench.closed_loop import REPO, local_dds, power_node, start, stop_all
+from ops_bench.closed_loop import REPO, group_cpu_s, local_dds, power_node, start, stop_all
 from ops_bench.docs import publish
 
 SECTION = "## Loop rate over DDS, by executor"
@@ -134,9 +136,11 @@ def measure_point(args, controller: str, executor: str, rate: float, logdir: Pat
             listener.spin_until(lambda: False, args.settle)
             power.clear()
             first_diag = len(listener.diagnostics)
+            cpu0 = [group_cpu_s(proc.pid) for proc in procs]
             t0 = time.monotonic()
             listener.spin_until(lambda: False, args.seconds)
             elapsed = time.monotonic() - t0
+            cpu = [group_cpu_s(proc.pid) - c for proc, c in zip(procs, cpu0, strict=True)]
             readings = list(power)
             diag = listener.diagnostics[first_diag:]
         finally:
@@ -155,6 +159,9 @@ def measure_point(args, controller: str, executor: str, rate: float, logdir: Pat
         "missed": (miss_b - miss_a) / max(step_b - step_a, 1),
         "locked": lock.get("locked_fraction", 0.0) if lock["first_lock_step"] is not None else 0.0,
         "first_lock_reading": lock["first_lock_step"],
+        # CPU a simulator step cost each process (its DDS threads too), microseconds
+        "sim_cpu_us_per_step": 1e6 * cpu[0] / max(step_b - step_a, 1) * (tb - ta) / elapsed,
+        "controller_cpu_us_per_step": 1e6 * cpu[1] / max(step_b - step_a, 1) * (tb - ta) / elapsed,
     }
 
 
@@ -183,10 +190,12 @@ def sweep(args, logdir: Path) -> list[dict]:
 
 
 def format_row(p: dict) -> str:
+    cpu = [p.get(k) for k in ("sim_cpu_us_per_step", "controller_cpu_us_per_step")]
+    cpu_cells = " | ".join("—" if c is None else f"{c:.0f}" for c in cpu)
     return (
         f"| {p['controller']} | {p['executor']} | {p['rate_hz']:g} | "
         f"{p['readings_per_s']:.0f} | {100 * p['missed']:.1f} % | {100 * p['locked']:.1f} % | "
-        f"{'yes' if p['held'] else 'no'} |"
+        f"{cpu_cells} | {'yes' if p['held'] else 'no'} |"
     )
 
 
@@ -229,8 +238,9 @@ def section(args, points: list[dict], load_start: str, load_end: str) -> list[st
         f"rate; the window: {args.seconds:g} s from {args.settle:g} s after the controller "
         "closes the loop. Readings/s: ops/power received by a subscriber; missed: the "
         "simulator's steps that took no new command (its diagnostics' steps_without_command); "
-        "locked: readings >= 0.95 after the first one. Held: readings/s >= 90 % of rate_hz, "
-        "missed <= 1 %, and (tracker, policy) locked >= 99 %.",
+        "locked: readings >= 0.95 after the first one; CPU per step: the CPU time of each "
+        "process group over the window (its DDS threads included) per simulator step. Held: "
+        "readings/s >= 90 % of rate_hz, missed <= 1 %, and (tracker, policy) locked >= 99 %.",
         "",
         f"Machine: {os.cpu_count()} cores, shared with other work (a loop waits for a core "
         "while the load exceeds them: on an idle machine the same command measures the code "
@@ -244,8 +254,9 @@ def section(args, points: list[dict], load_start: str, load_end: str) -> list[st
         lines.append(f"| {controller} | {executor} | {'none' if rate is None else f'{rate:g}'} |")
     lines += [
         "",
-        "| controller | executor | rate_hz | readings/s | missed | locked | held |",
-        "|---|---|---|---|---|---|---|",
+        "| controller | executor | rate_hz | readings/s | missed | locked | simulator CPU per "
+        "step, µs | controller CPU per step, µs | held |",
+        "|---|---|---|---|---|---|---|---|---|",
         *(format_row(p) for p in points),
         "",
     ]

@@ -1,0 +1,49 @@
+"""The CPU that ``ops-bench loop-rate`` books per simulator step: each node's session, the child
+that ``ros2 run`` starts in a process group of its own included."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from ops_bench.closed_loop import group_cpu_s, start, stop
+from ops_bench.loop_rate import format_row
+
+# The parent waits; its child, in a process group of its own (as ``ros2 run`` starts a node),
+# is busy: only the child's CPU can show.
+CHILD_BUSY = """
+import os, time
+parent = os.getpid()
+if os.fork() == 0:
+    os.setpgid(0, 0)
+    t = time.process_time()
+    while time.process_time() - t < 30 and os.getppid() == parent:  # (ends with its parent)
+        pass
+else:
+    os.wait()
+"""
+
+
+def test_a_session_is_booked_with_its_children_in_their_own_groups(tmp_path):
+    proc = start([sys.executable, "-c", CHILD_BUSY], tmp_path / "busy.log")
+    try:
+        first = group_cpu_s(proc.pid)
+        deadline = time.monotonic() + 30.0
+        while group_cpu_s(proc.pid) - first < 0.5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert group_cpu_s(proc.pid) - first >= 0.5  # the child's, in its own group
+    finally:
+        stop(proc)
+
+
+def test_a_gone_session_books_nothing():
+    assert group_cpu_s(2**22 + 12345) == 0.0
+
+
+def test_the_table_row_shows_the_cpu_per_step():
+    point = {"controller": "spgd", "executor": "events", "rate_hz": 500.0}
+    point |= {"readings_per_s": 495.0, "missed": 0.036, "locked": 1.0, "held": False}
+    point |= {"sim_cpu_us_per_step": 700.4, "controller_cpu_us_per_step": 616.2}
+    assert format_row(point) == "| spgd | events | 500 | 495 | 3.6 % | 100.0 % | 700 | 616 | no |"
+    del point["sim_cpu_us_per_step"]  # (a result file written before the column was added)
+    assert "| — | 616 |" in format_row(point)
