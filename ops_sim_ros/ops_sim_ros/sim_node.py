@@ -313,13 +313,20 @@ class SimNode(Node):
             )
 
     def _publish(self):
+        """A step's messages. The set-points always (latched: a later subscriber gets the last);
+        the volatile topics only where someone subscribes (each message costs tens of µs to
+        build and publish, at every step)."""
         r = self._result
-        trace = self._sim.trace(r)[0]
         self._pub_delays.publish(float_array_msg(r.setpoints_fs[0]))
-        self._pub_actual.publish(float_array_msg(r.applied_fs[0]))
-        self._pub_intensity.publish(trace_msg(trace, self._config.samples_per_slot))
-        self._pub_power.publish(Float32(data=float(r.power[0])))
-        self._pub_reward.publish(Float32(data=float(r.reward[0])))
+        if self._pub_actual.get_subscription_count():
+            self._pub_actual.publish(float_array_msg(r.applied_fs[0]))
+        if self._pub_intensity.get_subscription_count():
+            trace = self._sim.trace(r)[0]
+            self._pub_intensity.publish(trace_msg(trace, self._config.samples_per_slot))
+        if self._pub_power.get_subscription_count():
+            self._pub_power.publish(Float32(data=float(r.power[0])))
+        if self._pub_reward.get_subscription_count():
+            self._pub_reward.publish(Float32(data=float(r.reward[0])))
 
     def _publish_diagnostics(self):
         status = DiagnosticStatus(
