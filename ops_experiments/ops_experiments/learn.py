@@ -397,6 +397,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         f"obs_history={args.obs_history} observation={args.observation} reward={args.reward} "
         f"hyperparams_set={args.hyperparams_set} setpoint_window={args.setpoint_window:g} "
         f"continue_prob={args.continue_prob:g} "
+        + ("critic_observation=privileged " if critic_observation(args) == "privileged" else "")
         + (f"hold_steps={args.hold_steps or 'auto'} " if args.hold_steps != 1 else "")
         + "".join(f"{k}={v} " for k, v in sorted(args.rig_config.items()))
         + (f"rig_randomize=[{args.rig_ranges.describe()}] " if args.rig_ranges else "")
