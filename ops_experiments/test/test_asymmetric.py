@@ -7,11 +7,9 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
 
 import numpy as np
 import pytest
-from ops_bench.processes import executable
 from ops_contract.policy_meta import PolicyLoadError, read_meta
 from ops_controller_ros.policy_io import PolicyRunner, load_policy
 from ops_controller_ros.runner_factory import build_runner
@@ -22,6 +20,7 @@ from ops_experiments.oracle import true_error_fs
 from ops_experiments.training_run import TrainError
 from ops_sim_ros.vec_env import OpsSb3VecEnv
 
+from ops_experiments import evaluate
 from ops_sim_ros import OpsEnv
 
 pytestmark = pytest.mark.timeout(120)
@@ -102,12 +101,8 @@ def test_the_runner_and_evaluate_run_it_from_the_rig_readings(trained, tmp_path)
         reading = env.sim.step_increments(action[None, :])
     assert isinstance(PolicyRunner(load_policy(out)).policy.predict(np.zeros(runner.spec.dim)),
                       np.ndarray)  # fmt: skip
-    done = subprocess.run(
-        [*executable("ops_gym_bridge", "evaluate"), str(out), "--splits", "test", "--seeds", "7",
-         "--episodes", "2", "--steps", "20", "--no-plot", "--quiet", "--out", str(tmp_path)],
-        capture_output=True, text=True, timeout=90, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-2000:]
+    argv = [str(out), "--splits", "test", "--seeds", "7", "--episodes", "2", "--steps", "20"]
+    assert evaluate.run([*argv, "--no-plot", "--quiet", "--out", str(tmp_path)]) == 0
     result = json.loads((tmp_path / "evaluation.json").read_text())
     assert 0.0 <= result["splits"]["test"]["final_power_mean"] <= 1.0
 
