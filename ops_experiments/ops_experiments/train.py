@@ -124,7 +124,7 @@ def _add_algorithm_arguments(p) -> None:
         help="what SAC's critic sees in training: rig (the actor's observation) or privileged "
         "(the rig's observation and the simulator's true delay errors and drift: an asymmetric "
         "actor-critic, ops_experiments.asymmetric); the actor, and the model saved, see the "
-        "rig's observation only (in-process, batched, one rig; default: rig)",
+        "rig's observation only; in-process, batched, one rig (default: rig)",
     )
     p.add_argument(
         "--setpoint-window",
