@@ -35,6 +35,10 @@ Metadata, ``format_version`` 2 (1: the same without ``recipe``, ``recurrent`` an
     config            OpsConfig.to_dict() of the training environment
     normalization     null, or {"obs_mean": [...], "obs_var": [...], "clip_obs": float,
                       "epsilon": float} (VecNormalize observation statistics)
+    critic_observation  (optional) what the critic saw in training: "rig" (what the actor sees)
+                      or "privileged" (the rig's observation and the simulator's true delay
+                      errors: an asymmetric actor-critic, recipe "asymmetric-..."); the saved
+                      policy sees ``observation_spec`` alone either way; absent: "rig"
     hold_steps        (optional) readings per decision trained with (train --hold-steps; 0:
                       auto, the rig's latency_steps + 1); absent: 1
     switch            (optional) a switching model: ops_contract.policy_layers.SwitchParams and
@@ -74,6 +78,9 @@ RECURRENT_KINDS = tuple(sorted(set(RECURRENT_ALGOS.values())))
 #: How a model may have been trained: an algo's own reinforcement learning, or these.
 DISTILL_RECIPES = ("dagger", "bc", "distill")
 RECIPES = ALGOS + DISTILL_RECIPES + ("asymmetric",)
+#: What a critic may have seen in training (``critic_observation``); "privileged" only with a
+#: recipe of the "asymmetric" family.
+CRITIC_OBSERVATIONS = ("rig", "privileged")
 RECIPE_VARIANT = re.compile(r"[a-z0-9_]+(-[a-z0-9_]+)*")
 ACTION_TYPES = ("increment",)
 DETECTORS = ("polarizer", "total")
@@ -164,6 +171,7 @@ class PolicyMeta:
     max_step_fs: float = field(init=False)
     observation: ObservationSpec = field(init=False)
     recurrent: RecurrentSpec | None = field(init=False)
+    critic_observation: str = field(init=False)
     hold_steps: int = field(init=False)
     switch: SwitchParams | None = field(init=False)
     reacquire: WatchdogParams | None = field(init=False)
@@ -182,6 +190,7 @@ class PolicyMeta:
             "max_step_fs": float(data["max_step_fs"]),
             "observation": _observation(data, source, model),
             "recurrent": _recurrent(data, source, model),
+            "critic_observation": _critic_observation(data, source, model),
             "hold_steps": _hold_steps(data, source),
             "switch": _layer(data, SWITCH_KEY, SwitchParams, source),
             "reacquire": _layer(data, REACQUIRE_KEY, WatchdogParams, source),
@@ -371,6 +380,21 @@ def _recurrent(data: dict, source: str, model: str) -> RecurrentSpec | None:
             + (f"a {carries!r} state" if carries else "no recurrent state")
         )
     return spec
+
+
+def _critic_observation(data: dict, source: str, model: str) -> str:
+    seen = data.get("critic_observation", "rig")
+    if seen not in CRITIC_OBSERVATIONS:
+        raise PolicyLoadError(
+            f"model {model} was trained with a critic that saw {seen!r}, which this runner does "
+            f"not know (known: {', '.join(CRITIC_OBSERVATIONS)})"
+        )
+    if seen == "privileged" and str(data["recipe"]).partition("-")[0] != "asymmetric":
+        raise PolicyLoadError(
+            f"metadata malformed: {source}: critic_observation 'privileged' needs a recipe of "
+            f"the 'asymmetric' family (got {data['recipe']!r})"
+        )
+    return str(seen)
 
 
 def _hold_steps(data: dict, source: str) -> int:

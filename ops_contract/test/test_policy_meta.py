@@ -97,6 +97,8 @@ def test_written_metadata_keeps_the_new_fields(tmp_path):
         ({"recurrent": "lstm"}, r"'recurrent' must be null or an object"),
         ({"recurrent": {"kind": "lstm", "hidden": 8}}, r"algo 'sac' carries no recurrent state"),
         ({"algo": "recurrent_ppo"}, r"'recurrent' is null"),
+        ({"critic_observation": "camera"}, r"critic that saw 'camera', which this runner"),
+        ({"critic_observation": "privileged"}, r"'privileged' needs a recipe of the 'asymmetric'"),
         ({"training_wall_s": "long"}, r"training_wall_s must be null or seconds"),
         ({"detector": "eye"}, r"detector 'eye' is not one of polarizer, total"),
         ({"stage": 5}, r"observation_spec is for stage 3, the model for stage 5"),
@@ -119,6 +121,12 @@ def test_an_unknown_observation_set_is_refused_naming_it():
     spec = {**ObservationSpec(stage=3).to_dict(), "observation": "camera"}
     with pytest.raises(PolicyLoadError, match=r"observation set 'camera', which this runner"):
         PolicyMeta.from_dict(_entries(observation_spec=spec))
+
+
+def test_an_asymmetric_model_says_what_its_critic_saw():
+    assert PolicyMeta.from_dict(_entries()).critic_observation == "rig"  # absent: rig
+    meta = PolicyMeta.from_dict(_entries(recipe="asymmetric-sac", critic_observation="privileged"))
+    assert (meta.recipe, meta.critic_observation) == ("asymmetric-sac", "privileged")
 
 
 def test_recipes_and_their_variants():

@@ -66,6 +66,11 @@ def make_env(run: TrainRun) -> None:
     from stable_baselines3.common.vec_env import VecNormalize
 
     args = run.args
+    if args.critic_observation == "privileged":
+        from .asymmetric import make_privileged_vec_env
+
+        run.venv = wrap_training_reward(make_privileged_vec_env(args), args.reward)
+        return
     try:
         venv = make_vec_env(
             args.backend,
@@ -137,6 +142,10 @@ def make_model(run: TrainRun) -> None:
         action_dim = int(np.prod(run.venv.action_space.shape))
         try:
             kwargs = hp.sb3_kwargs(args.algo, run.params, action_dim)
+            if args.critic_observation == "privileged":
+                from .asymmetric import asymmetric_policy
+
+                kwargs.update(asymmetric_policy(run.venv, kwargs.get("policy_kwargs")))
             model = cls(env=run.venv, seed=args.seed, device=args.device, verbose=0, **kwargs)
         except (TypeError, ValueError) as exc:
             raise TrainError(f"invalid hyper-parameters for {args.algo}: {exc}") from None

@@ -4,7 +4,8 @@ a privileged teacher with DAgger (Ross et al., 2011) on the batched simulator.
 The teacher (:mod:`.oracle`, recipe ``dagger-oracle``) reads the simulator's true delay errors and
 cancels them; the student is the actor of a stable-baselines3 SAC model (deterministic: tanh of
 its mean) on the rig's observation with memory (``--obs-history k``). Each round runs
-``--envs`` environments of :class:`~ops_sim_ros.vec_env.OpsVectorEnv` for one episode: at each
+``--envs`` environments of :class:`~ops_sim_ros.vec_env.OpsVectorEnv` for one episode
+(``--episode-steps``; the test evaluation's episodes keep 200 steps): at each
 step every environment takes the teacher's action with probability beta (1 in the first round,
 then ``--beta-decay`` times the last) and the student's otherwise, and every visited state is
 stored with the teacher's label; the actor is then fitted to all stored pairs (mean squared
@@ -34,7 +35,8 @@ import numpy as np
 from ops_contract.heap import freeze_after_heavy_imports
 
 from . import cli_args
-from .oracle import teacher_labels
+from .envs import EPISODE_STEPS
+from .oracle import privileged_dim, privileged_features, teacher_labels
 
 RECIPES = ("dagger-oracle",)
 EVAL_EPISODES = 100
@@ -45,31 +47,38 @@ INITIAL_LOG_STD = -2.3
 
 @dataclass
 class Dataset:
-    """The aggregated (observation, label) pairs, a ring of ``capacity`` rows."""
+    """The aggregated (observation, label, auxiliary target) rows, a ring of ``capacity``;
+    ``aux_dim`` 0: no auxiliary targets."""
 
     capacity: int
     obs_dim: int
     act_dim: int
+    aux_dim: int = 0
     size: int = 0
     head: int = 0
     obs: np.ndarray = field(init=False)
     labels: np.ndarray = field(init=False)
+    aux: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
         self.obs = np.zeros((self.capacity, self.obs_dim), dtype=np.float32)
         self.labels = np.zeros((self.capacity, self.act_dim), dtype=np.float32)
+        self.aux = np.zeros((self.capacity, self.aux_dim), dtype=np.float32)
 
-    def add(self, obs: np.ndarray, labels: np.ndarray) -> None:
+    def add(self, obs: np.ndarray, labels: np.ndarray, aux: np.ndarray | None = None) -> None:
         n = obs.shape[0]
         idx = (self.head + np.arange(n)) % self.capacity
         self.obs[idx] = obs
         self.labels[idx] = labels
+        if self.aux_dim:
+            self.aux[idx] = aux
         self.head = int((self.head + n) % self.capacity)
         self.size = min(self.size + n, self.capacity)
 
-    def sample(self, rng: np.random.Generator, batch: int) -> tuple[np.ndarray, np.ndarray]:
+    def sample(self, rng: np.random.Generator, batch: int):
+        """(observations, labels, auxiliary targets) of ``batch`` rows drawn with replacement."""
         idx = rng.integers(0, self.size, size=batch)
-        return self.obs[idx], self.labels[idx]
+        return self.obs[idx], self.labels[idx], self.aux[idx]
 
 
 class Standardizer:
@@ -111,18 +120,25 @@ def student_actions(actor, obs: np.ndarray, norm=None) -> np.ndarray:
         return torch.tanh(mean).numpy().astype(np.float64)
 
 
-def fit(actor, optimizer, data: Dataset, rng, steps: int, batch: int, norm) -> float:
+def fit(actor, optimizer, data: Dataset, rng, steps: int, batch: int, norm, aux=None) -> float:
     """``steps`` Adam steps of the actor's deterministic action toward the labels; the mean
-    loss of the last tenth."""
+    loss (of the actions alone) of the last tenth. ``aux`` (head, weight): a linear head on the
+    actor's last hidden layer fitted to the auxiliary targets as well, the weighted mean squared
+    error added to the loss (the head is not part of the saved actor)."""
     import torch
 
     losses = []
     for _ in range(steps):
-        x, y = data.sample(rng, batch)
-        mean, _, _ = actor.get_action_dist_params(torch.as_tensor(norm(x)))
-        loss = torch.mean((torch.tanh(mean) - torch.as_tensor(y)) ** 2)
+        x, y, z = data.sample(rng, batch)
+        features = actor.extract_features(torch.as_tensor(norm(x)), actor.features_extractor)
+        latent = actor.latent_pi(features)
+        loss = torch.mean((torch.tanh(actor.mu(latent)) - torch.as_tensor(y)) ** 2)
+        total = loss
+        if aux is not None:
+            head, weight = aux
+            total = loss + weight * torch.mean((head(latent) - torch.as_tensor(z)) ** 2)
         optimizer.zero_grad()
-        loss.backward()
+        total.backward()
         optimizer.step()
         losses.append(float(loss.detach()))
     tail = losses[-max(1, steps // 10) :]
@@ -180,7 +196,7 @@ class Collector:
         final = np.nan
         for _ in range(self.base_config.episode_steps):
             labels = teacher_labels(sim, self.probe_steps, self.age)
-            data.add(obs, labels)
+            data.add(obs, labels, privileged_features(sim) if data.aux_dim else None)
             if beta >= 1.0:
                 act = labels
             else:
@@ -210,6 +226,8 @@ def build_student(args, out: Path):
         "--seed", str(args.seed), "--torch-threads", str(args.torch_threads), "--n-envs", "1",
         "--hyperparams", f"net_arch=[{args.width},{args.width}]",
     ]  # fmt: skip
+    if args.episode_steps != EPISODE_STEPS:
+        options += ["--episode-steps", str(args.episode_steps)]
     if args.setpoint_window:
         options += ["--setpoint-window", str(args.setpoint_window)]
     if args.continue_prob:
@@ -221,8 +239,9 @@ def build_student(args, out: Path):
     return build_model(options, out)
 
 
-def env_kwargs_of(run) -> dict:
-    """The batched envs' arguments for the run's task (stage, mode, detector, observation, rig)."""
+def env_kwargs_of(run, episode_steps: int | None = None) -> dict:
+    """The batched envs' arguments for the run's task (stage, mode, detector, observation, rig;
+    episodes of ``episode_steps``, default the run's training episodes)."""
     from .training_run import observation_options
 
     a = run.args
@@ -230,7 +249,7 @@ def env_kwargs_of(run) -> dict:
         stage=a.stage,
         mode=a.mode,
         detector=a.detector,
-        max_episode_steps=a.episode_steps,
+        max_episode_steps=a.episode_steps if episode_steps is None else episode_steps,
         observation_options=observation_options(a),
         **a.rig_config,
     )
@@ -258,11 +277,18 @@ def train_loop(args, run, out: Path, argv: list[str], t0: float) -> dict:
     with torch.no_grad():  # a near-deterministic start for an RL fine-tune (train --init-from)
         actor.log_std.weight.zero_()
         actor.log_std.bias.fill_(INITIAL_LOG_STD)
-    optimizer = torch.optim.Adam(actor.parameters(), lr=args.lr)
+    aux = None
+    params = list(actor.parameters())
+    if args.aux_weight > 0:  # the privileged values as auxiliary targets of the last hidden layer
+        head = torch.nn.Linear(actor.mu.in_features, privileged_dim(args.stage))
+        aux = (head, args.aux_weight)
+        params += list(head.parameters())
+    optimizer = torch.optim.Adam(params, lr=args.lr)
     env_kwargs = env_kwargs_of(run)
+    test_kwargs = env_kwargs_of(run, EPISODE_STEPS)  # the test's episodes, whatever training's
     collector = Collector(args, env_kwargs, run.args.rig_ranges)
     obs_dim = int(np.prod(run.model.observation_space.shape))
-    data = Dataset(args.capacity, obs_dim, args.stage)
+    data = Dataset(args.capacity, obs_dim, args.stage, privileged_dim(args.stage) if aux else 0)
     rng = np.random.default_rng(args.seed)
     best: dict = {}
     norm = None
@@ -275,10 +301,10 @@ def train_loop(args, run, out: Path, argv: list[str], t0: float) -> dict:
             train_power = collector.round(actor, data, beta, norm)
             if norm is None:
                 norm = Standardizer(data.obs[: data.size])
-            loss = fit(actor, optimizer, data, rng, args.grad_steps, args.batch, norm)
+            loss = fit(actor, optimizer, data, rng, args.grad_steps, args.batch, norm, aux)
             if (r + 1) % args.eval_every and r + 1 < args.rounds:
                 continue
-            final = evaluate_student(actor, env_kwargs, args.eval_seed, norm)
+            final = evaluate_student(actor, test_kwargs, args.eval_seed, norm)
             mean, worst = float(final.mean()), float(final.min())
             minutes = (time.perf_counter() - t0) / 60.0
             row = (f"{minutes:.2f}", collector.steps, f"{mean:.4f}", f"{worst:.4f}", f"{beta:.3f}")
@@ -315,6 +341,7 @@ def _extra(args, best: dict, steps: int) -> dict:
 DAGGER_KEYS = (
     "envs", "rounds", "beta0", "beta_decay", "grad_steps", "batch", "lr", "capacity",
     "probe_steps", "action_noise", "width", "eval_seed", "setpoint_window", "continue_prob",
+    "episode_steps", "aux_weight",
 )  # fmt: skip
 
 
@@ -337,6 +364,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.0,
         help="an ended episode carries the run on with this probability (as train's)",
     )
+    p.add_argument(
+        "--episode-steps",
+        type=int,
+        default=EPISODE_STEPS,
+        help="steps of a training episode (a round is one); the test evaluation's episodes "
+        f"keep {EPISODE_STEPS}: shorter ones start more runs afresh per environment step",
+    )
     p.add_argument("--realism", choices=("ideal", "lab"), default=None)
     p.add_argument("--rig-randomize", nargs="+", default=None, metavar="KEY=LOW:HIGH",
                    help="a rig drawn per round (all envs share it), as train's")  # fmt: skip
@@ -351,6 +385,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--probe-steps", type=int, default=6, help="steps of the fixed probe")
     p.add_argument("--action-noise", type=float, default=0.1, help="std on student actions")
     p.add_argument("--width", type=int, default=256, help="hidden units (two layers)")
+    p.add_argument(
+        "--aux-weight",
+        type=float,
+        default=0.0,
+        help="weight of auxiliary targets: a linear head on the student's last hidden layer "
+        "also fits what only the simulator knows (each line's true error as cos and sin of its "
+        "phase, the drift's slope; oracle.privileged_features), which the labels, clipped to "
+        "the actuator's step, do not tell far from the optimum; the head is not saved (0: none)",
+    )
     p.add_argument("--eval-every", type=int, default=3, help="rounds between evaluations")
     p.add_argument("--eval-seed", type=int, default=1000)
     p.add_argument("--max-minutes", type=float, default=60.0)

@@ -79,7 +79,8 @@ def build_metadata(
     powers = final_powers(model.ep_info_buffer or [])
     return {
         "algo": args.algo,
-        "recipe": args.algo,
+        "recipe": recipe_of(args),
+        "critic_observation": critic_observation(args),
         "recurrent": recurrent_of(model),
         "training_wall_s": training_wall_s(previous, history),
         "stage": args.stage,
@@ -115,6 +116,28 @@ def build_metadata(
         "train_final_power_mean": float(powers.mean()) if powers.size else None,
         "history": history,
     }
+
+
+def critic_observation(args) -> str:
+    """What the run's critic sees (``train --critic-observation``; rig for runs without one)."""
+    return getattr(args, "critic_observation", None) or "rig"
+
+
+def recipe_of(args) -> str:
+    """The metadata's ``recipe``: the algo, or ``asymmetric-sac`` for an asymmetric critic."""
+    if critic_observation(args) == "privileged":
+        return f"asymmetric-{args.algo}"
+    return args.algo
+
+
+def saved_model(args, model):
+    """What a model directory holds of a run's model: the model itself, or for an asymmetric
+    critic the actor alone on the rig's observation (:func:`.asymmetric.export_actor`)."""
+    if critic_observation(args) != "privileged":
+        return model
+    from .asymmetric import export_actor
+
+    return export_actor(model)
 
 
 def recurrent_of(model) -> dict | None:
@@ -158,8 +181,10 @@ def _save(
 
     out.mkdir(parents=True, exist_ok=True)
     tmp = out / "model.tmp.zip"
-    model.save(str(tmp))
+    saved = saved_model(args, model)
+    saved.save(str(tmp))
     tmp.replace(out / "model.zip")
+    replay = replay and saved is model  # (an exported actor cannot be resumed)
     if replay and hasattr(model, "replay_buffer") and model.replay_buffer is not None:
         model.save_replay_buffer(str(out / "replay_buffer.pkl"))
     from stable_baselines3.common.vec_env import VecNormalize
@@ -193,8 +218,14 @@ def _best_model_hooks(run: TrainRun, t0_ref: list[float]):
     def evaluate(model) -> float:
         venv = run.venv
         norm = venv.normalize_obs if isinstance(venv, VecNormalize) else (lambda o: o)
+        if critic_observation(args) == "privileged":  # the actor, on the rig's observation
+            from .asymmetric import actor_predict
+
+            predict = actor_predict(model)
+        else:
+            predict = lambda obs: model.predict(norm(obs), deterministic=True)[0]  # noqa: E731
         res = rollout_policy(
-            lambda obs: model.predict(norm(obs), deterministic=True)[0],
+            predict,
             cfg,
             args.eval_episodes,
             args.episode_steps,
@@ -318,6 +349,14 @@ def _callbacks(run: TrainRun, t0_ref: list[float]):
         total, not args.no_progress, every, out, normalize, max_s, best, bool(args.init_from)
     )
     callbacks.callbacks.extend(run.extra_callbacks)
+    if critic_observation(args) == "privileged":  # checkpoints of the actor alone
+        from stable_baselines3.common.callbacks import CheckpointCallback
+
+        from .asymmetric import ExportCheckpoint
+
+        for i, c in enumerate(callbacks.callbacks):
+            if isinstance(c, CheckpointCallback):
+                callbacks.callbacks[i] = ExportCheckpoint(c.save_freq, c.save_path, c.name_prefix)
     warm_until = _warm_buffer_until(run)
     if warm_until is not None:
         from .callbacks import WarmBuffer
@@ -358,6 +397,7 @@ def learn_and_save(run: TrainRun) -> tuple[bool, BaseException | None, float]:
         f"obs_history={args.obs_history} observation={args.observation} reward={args.reward} "
         f"hyperparams_set={args.hyperparams_set} setpoint_window={args.setpoint_window:g} "
         f"continue_prob={args.continue_prob:g} "
+        + ("critic_observation=privileged " if critic_observation(args) == "privileged" else "")
         + (f"hold_steps={args.hold_steps or 'auto'} " if args.hold_steps != 1 else "")
         + "".join(f"{k}={v} " for k, v in sorted(args.rig_config.items()))
         + (f"rig_randomize=[{args.rig_ranges.describe()}] " if args.rig_ranges else "")

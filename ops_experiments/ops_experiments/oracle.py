@@ -70,3 +70,19 @@ def teacher_labels(sim, probe_steps: int = 1, age=None) -> np.ndarray:
         if early.any():
             labels[early] = probe_pattern(probe_steps, sim.stage)[age[early]]
     return labels
+
+
+def privileged_features(sim) -> np.ndarray:
+    """What only the simulator knows, as a critic (:mod:`.asymmetric`) or a student's auxiliary
+    targets (``distill --aux-weight``) take it: (B, 3 N) float32, the cos and sin of each line's
+    true error (2 pi / optical period), then the drift's slope per step in units of the
+    actuator's largest step (0 without drift)."""
+    cfg = sim.config
+    phase = 2.0 * np.pi * true_error_fs(sim) / cfg.optical_period_fs
+    slope = sim.noise.slope / cfg.max_step_fs if sim.noise.drift_enabled else 0.0 * phase
+    return np.concatenate([np.cos(phase), np.sin(phase), slope], axis=1).astype(np.float32)
+
+
+def privileged_dim(stage: int) -> int:
+    """The number of :func:`privileged_features` of a stacker of ``stage`` lines."""
+    return 3 * int(stage)

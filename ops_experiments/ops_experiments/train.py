@@ -10,6 +10,9 @@ environment step, and chooses the algorithm, ``--n-envs`` and ``--obs-history`` 
 the actions that led to them (``ops_contract.observation``; saved in the metadata).
 ``--observation authors`` trains on the authors' observation set (their ``CPS_env`` default, with
 the actual delay-line lengths, a simulator-only oracle) instead of the rig's (the default).
+``--critic-observation privileged`` trains an asymmetric actor-critic (SAC): the critic also sees
+the simulator's true delay errors, the actor and the saved model the rig's observation only
+(:mod:`.asymmetric`).
 ``--hold-steps K`` trains with held decisions (:mod:`ops_contract.held`): each environment step is
 one decision, the action applied on the first of K simulator steps and held (increment 0) on the
 others, the observation built from the last reading alone (its memory holds the decisions'
@@ -46,6 +49,7 @@ import sys
 import numpy as np
 from ops_contract.heap import freeze_after_heavy_imports
 from ops_contract.observation import OBSERVATION_SETS
+from ops_contract.policy_meta import CRITIC_OBSERVATIONS
 from ops_contract.threads import limit_blas_threads
 
 from . import cli_args
@@ -112,6 +116,15 @@ def _add_algorithm_arguments(p) -> None:
         help="observation set: rig (what a real stacker measures) or authors (the authors' "
         "CPS_env: power, trace and the actual delay-line lengths, a simulator-only oracle); "
         "saved in the model's metadata (default: rig; --resume: the model's)",
+    )
+    p.add_argument(
+        "--critic-observation",
+        choices=CRITIC_OBSERVATIONS,
+        default=None,
+        help="what SAC's critic sees in training: rig (the actor's observation) or privileged "
+        "(the rig's observation and the simulator's true delay errors and drift: an asymmetric "
+        "actor-critic, ops_experiments.asymmetric); the actor, and the model saved, see the "
+        "rig's observation only; in-process, batched, one rig (default: rig)",
     )
     p.add_argument(
         "--setpoint-window",

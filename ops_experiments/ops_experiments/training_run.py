@@ -32,6 +32,7 @@ RUN_KEYS = (
     "hyperparams_set",
     "continue_prob",
     "hold_steps",
+    "critic_observation",
 )
 
 
@@ -72,6 +73,35 @@ class TrainRun:
 
 def resolve_run(args, raw: list[str]) -> TrainRun:
     """The hyper-parameters, and for ``--resume`` what the stored run fixes (TrainError)."""
+    run = _resolve(args, raw)
+    _check_critic(run)
+    return run
+
+
+def _check_critic(run: TrainRun) -> None:
+    """An asymmetric critic (``--critic-observation privileged``, :mod:`.asymmetric`) reads the
+    batched simulator's hidden state, and its saved model is the actor alone: refuse the runs it
+    cannot make."""
+    args = run.args
+    if args.critic_observation != "privileged":
+        return
+    why = None
+    if args.resume or args.init_from:
+        why = ("cannot --resume or --init-from: the saved model is the actor alone, without "
+               "the critic that saw the privileged values")  # fmt: skip
+    elif args.algo != "sac":
+        why = f"is an asymmetric SAC: --algo sac (got {args.algo})"
+    elif args.backend != "inprocess" or args.rig_ranges:
+        why = "needs the simulator's state: --backend inprocess, one rig (no --rig-randomize)"
+    elif args.observation != "rig":
+        why = f"trains an actor on the rig's observation (got --observation {args.observation})"
+    elif run.params.get("normalize_obs"):
+        why = "does not support normalize_obs"
+    if why:
+        raise TrainError(f"--critic-observation privileged {why}")
+
+
+def _resolve(args, raw: list[str]) -> TrainRun:
     from ops_contract.policy_meta import PolicyLoadError, read_meta
 
     out = Path(args.out).expanduser().resolve()
@@ -242,6 +272,8 @@ def _fill_set_defaults(args) -> None:
             setattr(args, key, value)
     if args.observation is None:
         args.observation = "rig"
+    if args.critic_observation is None:
+        args.critic_observation = "rig"
     if args.setpoint_window is None:
         args.setpoint_window = 0.0
     if args.continue_prob is None:

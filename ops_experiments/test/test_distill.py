@@ -109,3 +109,41 @@ def test_a_tiny_dagger_run_makes_a_model_that_evaluate_runs(tmp_path):
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
     assert (tmp_path / "ev" / "evaluation.json").exists()
+
+
+def test_auxiliary_targets_are_fitted_by_a_head_that_is_not_saved(tmp_path):
+    import torch
+    from stable_baselines3 import SAC
+
+    from ops_sim_ros import OpsEnv
+
+    model = SAC("MlpPolicy", OpsEnv(stage=3), seed=0, policy_kwargs={"net_arch": [32, 32]})
+    actor, rng = model.actor, np.random.default_rng(0)
+    data = distill.Dataset(512, model.observation_space.shape[0], 3, aux_dim=9)
+    obs = rng.normal(size=(512, data.obs_dim)).astype(np.float32)
+    data.add(obs, np.zeros((512, 3)), np.tanh(obs[:, :9]))  # targets the input tells
+    head = torch.nn.Linear(32, 9)
+    opt = torch.optim.Adam([*actor.parameters(), *head.parameters()], lr=1e-2)
+
+    def aux_error() -> float:
+        with torch.no_grad():
+            latent = actor.latent_pi(torch.as_tensor(data.obs))
+            return float(torch.mean((head(latent) - torch.as_tensor(data.aux)) ** 2))
+
+    before = aux_error()
+    distill.fit(actor, opt, data, rng, 200, 128, lambda x: x, aux=(head, 1.0))
+    assert aux_error() < before / 3
+    # a tiny run with the targets: the saved model is the actor alone (a plain SAC model)
+    out = tmp_path / "student"
+    code = distill.main(
+        ["--stage", "3", "--mode", "hard", "--obs-history", "2", "--probe-steps", "2",
+         "--envs", "8", "--rounds", "1", "--grad-steps", "5", "--batch", "32", "--width", "32",
+         "--capacity", "5000", "--aux-weight", "0.5", "--out", str(out)]
+    )  # fmt: skip
+    assert code == 0
+    meta = read_metadata(out)
+    assert meta["dagger"]["aux_weight"] == 0.5 and meta["recipe"] == "dagger-oracle"
+    fresh = SAC("MlpPolicy", OpsEnv(stage=3, observation_options={"history": 2}),
+                policy_kwargs={"net_arch": [32, 32]})  # fmt: skip
+    saved = load_policy(out).model.actor.state_dict()
+    assert saved.keys() == fresh.actor.state_dict().keys()

@@ -30,7 +30,8 @@ def bench(*argv) -> subprocess.CompletedProcess:
 
 def test_the_shipped_recipes_are_distill_and_train_command_lines():
     shipped = recipes.read_recipes(recipes.RECIPES)
-    assert {"dagger-oracle", "fast-sac", "ppo-parallel"} <= set(shipped)
+    named = {"dagger-oracle", "fast-sac", "ppo-parallel", "asymmetric-sac", "recurrent-ppo"}
+    assert named <= set(shipped)
     assert {command[0] for command in shipped.values()} == {"distill", "train"}
 
 
