@@ -154,11 +154,12 @@ class TrackerParams:
     # keep at least vibration_follow of their value from one reading to the next add to the
     # walk the path follows, the others are noise of each reading (.vibration). "model": the rig
     # model's vibration, read at its step_s (none under time_base step).
+    # Not a node parameter: a node's model has no physical time to read a vibration at its
+    # loop's step.
     vibration: str = _declare(
         "model",
         "the delay lines' vibration the fits allow for: a preset, none, or model (the rig model's)",
         choices=("model", *VIBRATIONS),
-        node=True,
     )
     vibration_follow: float = _declare(
         0.9,
