@@ -4,8 +4,9 @@ The package: :mod:`.params` (the parameters, declared once), :mod:`.fit` (the fi
 functions), :mod:`.model` (the rig as the fits see it), and the state, each part with the module
 that changes it: :mod:`.commands` (set-points, excursions, commands in flight), :mod:`.window`
 (the readings), :mod:`.tracking` (the estimate, the priors of its fits, the false-lock rule),
-:mod:`.noise` (the detector's noise), :mod:`.acquisition` (the global search), :mod:`.knots` (the
-knot test), :mod:`.period` (whole-cycle moves, period correction) and :mod:`.latency_check`;
+:mod:`.noise` (the detector's noise), :mod:`.vibration` (the delay lines' vibration as the fits
+see it), :mod:`.acquisition` (the global search), :mod:`.knots` (the knot test), :mod:`.period`
+(whole-cycle moves, period correction) and :mod:`.latency_check`;
 :mod:`.core` holds :class:`PhaseTracker`, the thin facade that runs a reading through them.
 
 The controller knows the stacker's physics (:class:`ops_sim_ros.physics.PulseStacker` built from
@@ -47,6 +48,23 @@ fed forward) plus a small known excursion.
   command is out: :meth:`PhaseTracker.think` runs its ``knot_iterations`` (capped in real time by
   ``knot_budget_ms`` in the node) and tells the caller when the
   command it gave should be revised.
+
+Vibration (a model under ``time_base: seconds`` with a ``vibration`` preset, or the
+``vibration`` parameter): each of the preset's components keeps cos(2 pi f step_s) of its value
+from one reading to the next. Those that keep at least ``vibration_follow`` are followed as part
+of the path (their move per step adds to the walk); the others are noise of each reading, not a
+move of the path: a jitter about the path that shifts each entry's mean and adds to its variance
+(both from the stacker, by draws at a tracking excursion), so the readings are weighed down by it
+and every reading of the window speaks of the same slow path. Taken as a move of the path
+instead, a 10 Hz loop's vibration (0.017 cycles over five lines, a correlation of 0.2 from one
+reading to the next) let each reading's path point land on its mirror image wherever it exceeded
+the excursion. Under a told vibration the fits also take the ``vibration_*`` settings: a walk of
+``vibration_walk_factor`` times the model's jitter and a drift prior of
+``vibration_drift_prior_cycles``, both per physical time (per step of ``step_s``), a window of
+``vibration_window`` readings with a prior on its first errors from the last path taken
+(``vibration_arrival_cycles``: the fit remembers more than its window), a smaller excursion on a
+noisy detector (``vibration_dither_factor``) and a knot test asked for only by a path step of
+``vibration_knot_walk_sigmas`` (a stiff walk's few sigmas are the vibration's, not a knot).
 
 Detector noise: the first two readings of an acquisition are taken at the same set-points; their
 difference measures the noise variance, which widens the residual tolerance and the tracking

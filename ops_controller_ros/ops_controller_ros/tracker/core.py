@@ -41,6 +41,7 @@ from .tracking import (
     level_prior,
     walk_jump,
 )
+from .vibration import under_vibration
 from .window import Window, fit_window
 
 
@@ -98,7 +99,7 @@ class PhaseTracker:
         range and speed (:class:`.model.RigModel`)."""
         self.model = model
         self.stage = int(model.stage)
-        self.params = told_noise(params or TrackerParams(), model)
+        self.params = under_vibration(told_noise(params or TrackerParams(), model), model)
         self.calibration = ModelCalibration(model, self.params.calibration_memory)
         self.rig = RigModel(model, self.params, setpoint_range_fs, reach_fs)
         self.watch = LatencyWatch(self.rig.latency, self.params)
@@ -313,7 +314,7 @@ class PhaseTracker:
         raw = self.window.arrays(self.calibration, raw=True)[1]
         optics = self.params.calibrate_optics
         rig = self.rig
-        self.calibration.observe(rig.stacker, u, path, raw, rig.period_fs, optics, rig.weights)
+        self.calibration.observe(rig.expected, u, path, raw, rig.period_fs, optics, rig.weights)
         if not optics or self.loop.tick % self.params.calibration_every:
             return
         if self.calibration.update_optics():
@@ -344,6 +345,9 @@ class PhaseTracker:
         p, rig, tick, knot = self.params, self.rig, self.loop.tick, self.knot
         prior = drift_prior(p, self._noisy(), tick - knot.tick, knot.cut_short)
         gain = gain_prior(p, tick - self.lock.lock_tick, self.window.length)
+        sd = rig.arrival_sd(p)
+        if sd and "arrival" not in kwargs:
+            kwargs["arrival"] = self.lock.arrival(self.loop.step - age.astype(np.int64), sd)
         return fit.PathFitRun(
             rig.fit_stacker,
             rig.period_fs,
@@ -490,6 +494,7 @@ class PhaseTracker:
         # the model's pulse envelopes are evaluated where the pulses are (wrapped, the set-points
         # would carry the drift's whole cycles, and the residuals grow over a long run).
         lock.estimate = x
+        lock.keep_taken(self.loop.step - age.astype(np.int64))
         if p.calibrate:
             self._calibrate(u, lock.path)
         if ratio:
@@ -596,5 +601,6 @@ class PhaseTracker:
             return
         lock.path, lock.objective, lock.ratio = retry.path[1], retry.objective[1], retry.ratio[1]
         lock.estimate, lock.drift = retry.x[1], bounded(self.params, retry.drift[1])
+        lock.keep_taken(self.loop.step - age.astype(np.int64))
         self.calibration.take_fitted_line(float(retry.gain[1]), float(retry.level[1]))
         self.knot.won(tick)

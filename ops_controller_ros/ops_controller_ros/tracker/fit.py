@@ -185,10 +185,12 @@ def path_problem(
     knot_prior,
     gain_prior=0.0,
     level_prior=0.0,
+    arrival=None,
 ):
     """The :class:`PathProblem` of M starts (``drift`` (M, N) the starts' drifts, also the
     prior's mean; ``drift_prior`` (M, N) its std; ``gain_prior`` > 0: g is fitted, with that
-    prior std about 0; ``level_prior`` > 0: o too)."""
+    prior std about 0; ``level_prior`` > 0: o too; ``arrival``: (mean (N,), std) a prior on the
+    errors at the window's first reading)."""
     k, n = u.shape
     m = drift.shape[0]
     fits_gain, fits_level = gain_prior > 0.0, level_prior > 0.0
@@ -214,6 +216,9 @@ def path_problem(
         walk_normal = walk.transpose(0, 2, 1) @ walk / w_sd**2
     prior_mean = np.zeros((m, d))
     prior_mean[:, k * n : nz] = drift
+    if arrival is not None:
+        prior_w[:, :n] = 1.0 / arrival[1] ** 2
+        prior_mean[:, :n] = arrival[0]
     return PathProblem(
         stacker=stacker,
         period_fs=period_fs,
@@ -395,6 +400,10 @@ class PathFitRun:
     empty slots of a stack, like delay errors (docs/rig.md, "The detector's offset, measured in
     every record").
 
+    ``arrival``: (mean (N,), std) a prior on the errors at the window's first reading: the
+    fit before's path there (a moving-horizon estimate's arrival cost), so that a window
+    remembers what the readings before it said (under a vibration each reading says little).
+
     ``prune``: (iterations, keep): after that many iterations only the ``keep`` starts of
     lowest cost iterate on, and the first (no knot: the one the others must beat). ``path0``:
     (M, K, N) the starts' paths (by default straight back from x_now by the drift).
@@ -426,11 +435,12 @@ class PathFitRun:
         chunk=None,
         gain_prior: float = 0.0,
         level_prior: float = 0.0,
+        arrival=None,
     ):
         k, n = u.shape
         m = x_now.shape[0]
         fixed = (u, y, age, drift, r_sd, w_sd, drift_prior, ratio, knots, knot_prior)
-        pb = path_problem(stacker, period_fs, *fixed, gain_prior, level_prior)
+        pb = path_problem(stacker, period_fs, *fixed, gain_prior, level_prior, arrival)
         if path0 is None:  # the straight path back from x_now by the drift
             path0 = x_now[:, None, :] - age[None, :, None] * drift[:, None, :]
         extra = np.zeros((m, (1 if ratio else 0) + (pb.gain >= 0) + (pb.level >= 0)))

@@ -1,6 +1,6 @@
 """The rig as the tracker models it: the stacker and optical period it fits with (replaced when the
 calibration moves the optics), the per-entry weights of a reading, the set-point range, the delay
-lines' lag and the random walk the path fits assume.
+lines' lag, and the random walk and vibration the path fits assume (:mod:`.vibration`).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
 
 from . import fit
 from .params import TrackerParams
+from .vibration import ShakenStacker, told_vibration
 from .weights import WeightedStacker, source_noise_weights
 from .work import scaled
 
@@ -59,6 +60,16 @@ class RigModel:
         source_noise = float(getattr(config, "pulse_amplitude_noise", 0.0))
         floor = max(params.detector_noise, params.fit_noise_floor)
         self.weights = source_noise_weights(self.stage, source_noise, floor)
+        # ... and the delay lines' vibration: the part a step does not keep is noise of every
+        # reading, most of the stacked slot and the power, and shifts their mean (.vibration)
+        self.vibration = told_vibration(params, config)
+        self._shaken = None  # expected's, for the stacker now
+        if self.vibration is not None and self.vibration.fast_var > 0.0:
+            self._excursion = _tracking_excursion(params, self.stage)
+            _, var = self.vibration.reading_moments(self.stacker, self._excursion)
+            if self.weights is None:
+                self.weights = np.ones(self.stacker.num_slots + 1)
+            self.weights = self.weights * (floor**2 / (floor**2 + var)) ** 0.5
         if params.power_weight < 1.0:
             if self.weights is None:
                 self.weights = np.ones(self.stacker.num_slots + 1)
@@ -82,8 +93,10 @@ class RigModel:
         self.lag_gain = lag_gain(lag) if lag > 0.0 else None
         w = params.walk_cycles
         # the path fits' random walk per step: by default six times the model's jitter, so that
-        # a rig noisier than nominal is still followed
+        # a rig noisier than nominal is still followed; and the vibration the path follows
         self.walk_sigma = max(6.0 * config.jitter_sigma_cycles, 1e-4) if w is None else w
+        if self.vibration is not None:
+            self.walk_sigma = (self.walk_sigma**2 + self.vibration.walk_var) ** 0.5
         # One row (delay vector) the physics evaluates, in the work budget's unit (a row at
         # N = 5): its matrix product grows with the square of the patterns (2^N).
         self.work_scale = (self.stacker.num_patterns / 32.0) ** 2
@@ -92,15 +105,35 @@ class RigModel:
         source = source_noise > 0.0
         self.told_noisy = source or params.detector_noise >= params.told_noisy_threshold
 
+    def arrival_sd(self, params: TrackerParams) -> float:
+        """The std of the path fits' prior on a window's first errors (0: none): under a told
+        vibration, ``vibration_arrival_cycles``."""
+        return params.vibration_arrival_cycles if self.vibration is not None else 0.0
+
+    @property
+    def expected(self):
+        """The model's expected reading: the stacker's, and under a vibration with a fast part,
+        plus the mean that part's jitter adds (:class:`.vibration.ShakenStacker`); built once
+        per stacker."""
+        if self.vibration is None or self.vibration.fast_var <= 0.0:
+            return self.stacker
+        cached = self._shaken
+        if cached is None or cached.inner is not self.stacker:
+            bias, _ = self.vibration.reading_moments(self.stacker, self._excursion)
+            cached = self._shaken = ShakenStacker(self.stacker, bias)
+        return cached
+
     @property
     def fit_stacker(self):
-        """The model as the fits see it: readings weighed per entry (.weights); built once per
-        stacker (the calibration replaces ``stacker`` when it adopts new optics)."""
+        """The model as the fits see it: the expected readings (:attr:`expected`) weighed per
+        entry (.weights); built once per stacker (the calibration replaces ``stacker`` when it
+        adopts new optics)."""
+        inner = self.expected
         if self.weights is None:
-            return self.stacker
+            return inner
         cached = self._weighted
-        if cached is None or cached.inner is not self.stacker:
-            cached = self._weighted = WeightedStacker(self.stacker, self.weights)
+        if cached is None or cached.inner is not inner:
+            cached = self._weighted = WeightedStacker(inner, self.weights)
         return cached
 
     def weighed(self, y):
@@ -146,7 +179,7 @@ class RigModel:
 
     def predict(self, x, u, age, drift) -> np.ndarray:
         """Readings (M, K, S + 1) for candidate present errors x (M, N) cycles, unweighed."""
-        return fit.predict(self.stacker, self.period_fs, x, u, age, drift)
+        return fit.predict(self.expected, self.period_fs, x, u, age, drift)
 
     def cost(self, x, u, y, age, drift) -> np.ndarray:
         """Mean squared weighed residual (M,) of the readings for candidates x (M, N)."""
@@ -160,5 +193,13 @@ class RigModel:
 
     def slot_residuals(self, u, path, y) -> np.ndarray:
         """The slot energies predicted at the path (K, N) minus those read (K, S)."""
-        energies, _ = self.stacker.energies_and_power((u + path) * self.period_fs)
+        energies, _ = self.expected.energies_and_power((u + path) * self.period_fs)
         return energies - y[:, :-1]
+
+
+def _tracking_excursion(params: TrackerParams, n: int) -> np.ndarray:
+    """A tracking excursion (N,) of the length the told noise sizes (:func:`.commands.
+    hold_dither`), in the pattern's first direction: where the vibration's moments are taken."""
+    from .commands import excursion, hold_dither
+
+    return hold_dither(params, params.detector_noise**2, np.zeros(n)) * excursion(params, n, 0)

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
 
+from ops_contract.config import VIBRATIONS
+
 
 def _declare(
     default,
@@ -150,6 +152,63 @@ class TrackerParams:
         0.0,
         low_open=True,
         optional=True,
+    )
+    # The delay lines' vibration (ops_sim_ros.vibration) at the loop's step: its components that
+    # keep at least vibration_follow of their value from one reading to the next add to the
+    # walk the path follows, the others are noise of each reading (.vibration). "model": the rig
+    # model's vibration, read at its step_s (none under time_base step).
+    # Not a node parameter: a node's model has no physical time to read a vibration at its
+    # loop's step.
+    vibration: str = _declare(
+        "model",
+        "the delay lines' vibration the fits allow for: a preset, none, or model (the rig model's)",
+        choices=("model", *VIBRATIONS),
+    )
+    vibration_follow: float = _declare(
+        0.9,
+        "a vibration component that keeps this correlation over one step is followed as part "
+        "of the path; the rest is noise of each reading",
+        -1.0,
+        1.0,
+    )
+    # Under a told vibration the readings are noisy whatever the detector, and a path fit that
+    # follows them takes the vibration for the lines' walk: the fits take these settings instead
+    # of the ones beside them (.vibration.under_vibration; docs/loop_rate.md, "The tracker").
+    # A window's fit starts from what the fits before found: its first errors have a prior, the
+    # last taken path's there with this std (a moving-horizon estimate's arrival cost), so a fit
+    # remembers more readings than its window holds (0: none).
+    vibration_arrival_cycles: float = _declare(
+        0.003,
+        "under a told vibration, std of the prior on a window's first errors from the fit "
+        "before, cycles (0: none)",
+        0.0,
+    )
+    vibration_walk_factor: float = _declare(
+        1.0,
+        "under a told vibration, the path fits' walk per step is this many times the model's "
+        "jitter over that step (walk_cycles unset)",
+        0.0,
+        100.0,
+        low_open=True,
+    )
+    vibration_drift_prior_cycles: float = _declare(
+        0.0001,
+        "under a told vibration, how far one window may move the drift estimate, cycles per "
+        "0.1 s (std)",
+        0.0,
+        low_open=True,
+    )
+    vibration_window: int = _declare(
+        20, "under a told vibration, readings per fit (the longer of it and window)", 2, 64
+    )
+    vibration_dither_factor: float = _declare(
+        0.2, "under a told vibration, noisy_dither_factor", 0.0, 2.0
+    )
+    vibration_knot_walk_sigmas: float = _declare(
+        3.0,
+        "under a told vibration, knot_walk_sigmas (clean or noisy detector)",
+        0.0,
+        low_open=True,
     )
     drift_prior_cycles: float = _declare(
         0.004, "how far one window may move the drift estimate (std)", 0.0, low_open=True

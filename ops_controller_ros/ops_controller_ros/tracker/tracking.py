@@ -33,6 +33,9 @@ class Lock:
     ratio: float = 0.0  # ... the period error it fitted (over a whole-cycle move)
     gain_step: float = 0.0  # ... the detector's relative gain it fitted (lock_gain_walk)
     level_step: float = 0.0  # ... and the offset (lock_offset_walk)
+    # the path of the last fit taken and the step of each of its readings: the next fits'
+    # arrival prior (None: none since the lock, or its cycles changed)
+    taken: tuple | None = None
     bad_fits: int = 0  # fits in a row whose readings left the model
     recovering: list | None = None  # readings since then, while re-locking
     lock_tick: int = 0  # the reading an acquisition locked on
@@ -62,11 +65,27 @@ class Lock:
         self.estimate = wrap(x)
         self.drift = np.zeros(self.stage) if drift is None else drift
         self.lock_tick = tick
+        self.taken = None
 
     def lose(self) -> None:
         """No estimate any more (an acquisition follows)."""
         self.estimate = None
         self.recovering = None
+        self.taken = None
+
+    def keep_taken(self, steps: np.ndarray) -> None:
+        """The last path fit is taken; its readings were at ``steps`` (K,)."""
+        if self.path.shape[0] == steps.shape[0]:
+            self.taken = (steps, self.path)
+
+    def arrival(self, steps: np.ndarray, sd: float):
+        """(mean (N,), std) of the prior on the errors at the first of readings at ``steps``:
+        the last path taken there, or None where it holds no such reading (or ``sd`` is 0)."""
+        if self.taken is None or sd <= 0.0 or steps.shape[0] == 0:
+            return None
+        before, path = self.taken
+        i = np.flatnonzero(before == steps[0])
+        return None if i.size == 0 else (path[int(i[0])], sd)
 
     def predicted(self, gap: int) -> np.ndarray:
         """The errors ``gap`` steps on, by the drift."""
@@ -77,6 +96,7 @@ class Lock:
         reading's set-points ``latest_u``, in old cycles, keep their phase)."""
         self.estimate = self.estimate + latest_u - latest_u * ratio  # same phase
         self.drift = self.drift * ratio
+        self.taken = None
 
 
 class Guard:
