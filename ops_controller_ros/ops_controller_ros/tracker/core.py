@@ -9,8 +9,8 @@ window of readings (:class:`.window.Window`), the estimate and its last path fit
 false-lock rule (:class:`.tracking.Guard`), beside the model it fits with
 (:class:`.model.RigModel`) and the calibration. The methods here run a reading through them:
 acquiring (no estimate), tracking (each reading re-fits the window's path; a fit that does not
-explain its readings asks for the knot test) and recovering (a local re-lock). The package
-docstring (:mod:`ops_controller_ros.tracker`) describes the method.
+explain its readings asks for the knot test) and recovering (a local re-lock). The method:
+the package docstring (:mod:`ops_controller_ros.tracker`).
 """
 
 from __future__ import annotations
@@ -105,8 +105,7 @@ class PhaseTracker:
         self.watch = LatencyWatch(self.rig.latency, self.params)
         self.period = Period()
         self._rng = np.random.default_rng(seed)
-        # the latency check's own stream: a check leaves the commands' random signs as they were
-        self._check_rng = self._rng.spawn(1)[0]
+        self._check_rng = self._rng.spawn(1)[0]  # (the latency check's: the commands' unmoved)
         self.reset(np.zeros(self.stage) if setpoints_fs is None else setpoints_fs)
 
     @property
@@ -166,16 +165,15 @@ class PhaseTracker:
     ) -> None:
         """The reading produced by the last :meth:`command`; updates the estimate.
 
-        ``steps``: the simulator (or rig) steps since the previous reading, 1 when every step's
-        reading is used (in process, lockstep). A free-running simulator steps whether or not
-        the command came: a late command costs a step on the old set-points, and the drift moved
-        the delays on by one more step than the reading before suggests.
+        ``steps``: the simulator (or rig) steps since the previous reading (1 in process and in
+        lockstep). A free-running simulator steps whether or not the command came: a late
+        command costs a step on the old set-points, and the drift moves the delays a step more.
 
         ``command_age``: steps from the step that took the last command to this reading's (0:
         this step took it; the nodes read it from ``ops/delays``). With a latency, a command acts
         that many steps after the step that took it, not after the reading it answered: a late
-        command told as such is not mistaken for a longer latency. None: taken by the step after
-        the previous reading (in process, lockstep)."""
+        command told as such is not taken for a longer latency. None: taken by the step after the
+        previous reading (in process, lockstep)."""
         y = self.rig.reading(power, pulse_energies)
         steps = int(steps)
         if steps < 1:
@@ -208,14 +206,11 @@ class PhaseTracker:
 
     def think(self, spread: bool = True) -> bool:
         """Work that may wait until the command is out: the knot test the last reading asked
-        for, with ``defer_knot_test`` (a node calls this after publishing the command, in the
-        time before the next step; :meth:`observe` calls it first if nobody did), and the next
-        part of a knot test spread over readings (``slice_knot_test``). True when their outcome
-        changed the command already given: :meth:`command` then gives the revised one (a node
-        sends it at once; if the step ran on the first one, its reading is not paired with the
-        revised command and is not used). ``spread`` False: the deferred test only (``observe``
-        runs it first: a spread test moves on in the time after a command, not twice a
-        reading)."""
+        for (``defer_knot_test``; a node calls this after publishing the command, :meth:`observe`
+        first if nobody did) and the next part of a spread knot test (``slice_knot_test``).
+        True when that changed the command given: :meth:`command` then gives the revised one (a
+        node sends it at once; a step run on the first one is not paired with it). ``spread``
+        False: the deferred test only (a spread test moves on after a command, not twice)."""
         lock, knot, p = self.lock, self.knot, self.params
         deadline, rows = None, knots.budget_rows(p, self.rig.work_scale)  # (this reading's)
         aimed = (lock.estimate, lock.drift)  # what the command given aims by
@@ -345,9 +340,8 @@ class PhaseTracker:
         p, rig, tick, knot = self.params, self.rig, self.loop.tick, self.knot
         prior = drift_prior(p, self._noisy(), tick - knot.tick, knot.cut_short)
         gain = gain_prior(p, tick - self.lock.lock_tick, self.window.length)
-        sd = rig.arrival_sd(p)
-        if sd and "arrival" not in kwargs:
-            kwargs["arrival"] = self.lock.arrival(self.loop.step - age.astype(np.int64), sd)
+        steps = self.loop.step - age.astype(np.int64)  # (a told vibration: the window's arrival)
+        kwargs.setdefault("arrival", self.lock.arrival(steps, rig.arrival_sd(p)))
         return fit.PathFitRun(
             rig.fit_stacker,
             rig.period_fs,
