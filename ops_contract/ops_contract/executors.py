@@ -29,6 +29,7 @@ from rclpy.subscription import Subscription
 from rclpy.task import Future
 
 from .node_params import ParamSpec
+from .ros_interface import NodeFatalError
 
 EXECUTORS = ("default", "events")
 
@@ -77,22 +78,40 @@ def spin(executor, node: Node) -> None:
         executor.spin_until_future_complete(Future(), EVENTS_TURN_S)
 
 
+#: The node attribute where :func:`guarded` keeps a NodeFatalError for :func:`raise_fatal`.
+_FATAL = "_ops_fatal_error"
+
+
 def guarded(node: Node, callback: Callable) -> Callable:
     """``callback`` for a timer or subscription of ``node``, quiet once the context is shut
     down: Ctrl-C or SIGTERM shuts it down from the signal handler, while a callback may be
     publishing, which then raises ("publisher's context is invalid"), and the events executor
-    logs that with a traceback. Raised while the context is still up, an error goes on as
-    before."""
+    logs that with a traceback. A :class:`NodeFatalError` (the node cannot go on: a model for
+    another stage) shuts the context down and is kept for :func:`raise_fatal`, so that the
+    node exits with its message alone under either executor. Any other error raised while the
+    context is up goes on as before."""
 
     def call(*args):
         try:
             return callback(*args)
+        except NodeFatalError as exc:
+            if getattr(node, _FATAL, None) is None:
+                setattr(node, _FATAL, exc)
+            node.context.try_shutdown()
+            return None
         except Exception:
             if node.context.ok():
                 raise
             return None
 
     return call
+
+
+def raise_fatal(node: Node | None) -> None:
+    """Raise the NodeFatalError a :func:`guarded` callback of ``node`` met, if any."""
+    fatal = getattr(node, _FATAL, None)
+    if fatal is not None:
+        raise fatal
 
 
 def subscribe_with_info(

@@ -12,6 +12,7 @@ message can stop a node.
 from __future__ import annotations
 
 import array
+import contextlib
 import functools
 import math
 import signal
@@ -251,7 +252,8 @@ def run_node(make_node: Callable[[], Node], args=None, executor: str | None = No
     for stop in (signal.SIGINT, signal.SIGTERM):
         signal.signal(stop, _stop_requested)
     rclpy.init(args=args)
-    from .executors import spin  # (executors declares a parameter: node_params imports us)
+    # (imported here: node_params, which executors uses, imports this module)
+    from .executors import raise_fatal, spin
 
     node = None
     spinner = None
@@ -259,9 +261,9 @@ def run_node(make_node: Callable[[], Node], args=None, executor: str | None = No
     try:
         node = make_node()
         spinner = _executor_of(node, executor)
-        spin(spinner, node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        with contextlib.suppress(KeyboardInterrupt, ExternalShutdownException):
+            spin(spinner, node)
+        raise_fatal(node)  # (a callback's, which shut the context down: executors.guarded)
     except ParameterError as exc:
         print(f"[ERROR] invalid parameter: {exc}", file=sys.stderr, flush=True)
         code = 2
