@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import signal
+import time
 
 import numpy as np
 import pytest
@@ -140,13 +142,19 @@ def test_lockstep_gives_each_command_exactly_its_own_outputs(procs, observer):
 def test_bad_commands_are_rejected_and_the_state_kept(procs, observer):
     sim = start_sim(procs, "stage:=2", "lockstep:=true", "seed:=3")
     observer.wait_for_subscriber()
-    observer.send([0.5, -0.25])
-    # (the latched start-up set-points may or may not reach the observer first: wait for ours)
-    observer.wait_until(
-        lambda: np.allclose(observer.last("delays") or [9.0, 9.0], [0.5, -0.25], atol=1e-6),
-        timeout=30,
-        what="the first command's step",
-    )
+    # (the latched start-up set-points may or may not reach the observer first: wait for ours;
+    # a command sent while the simulator is still matching our writer can be lost: send again)
+    first = [0.5, -0.25]
+    deadline = time.monotonic() + 30.0
+    while not np.allclose(observer.last("delays") or [9.0, 9.0], first, atol=1e-6):
+        assert time.monotonic() < deadline, "the first command's step never came"
+        observer.send(first)
+        with contextlib.suppress(AssertionError):
+            observer.wait_until(
+                lambda: np.allclose(observer.last("delays") or [9.0, 9.0], first, atol=1e-6),
+                timeout=2.0,
+                what="the first command's step",
+            )
     steps = observer.count("delays")
     for bad in ([1.0, 2.0, 3.0], [math.nan, 0.0], [0.0, math.inf], []):
         observer.send(bad)
