@@ -102,28 +102,23 @@ def asymmetric_policy(venv, policy_kwargs: dict | None) -> dict[str, Any]:
 
 def make_privileged_vec_env(args):
     """The monitored :class:`PrivilegedVecEnv` of a training run (train's resolved options)."""
-    import warnings
-
-    from stable_baselines3.common.vec_env import VecMonitor
-
+    from .envs import monitored_batched
     from .training_run import observation_options
 
-    with warnings.catch_warnings():  # (it renders nothing)
-        warnings.filterwarnings("ignore", message="The `render_mode` attribute")
-        venv = PrivilegedVecEnv(
-            num_envs=args.n_envs,
-            seed=args.seed,
-            stage=args.stage,
-            mode=args.mode,
-            split=args.split,
-            max_episode_steps=args.episode_steps,
-            observation_options=observation_options(args),
-            continue_prob=args.continue_prob,
-            hold_steps=args.hold_steps,
-            detector=args.detector,
-            **args.rig_config,
-        )
-    return VecMonitor(venv, info_keywords=("power",))
+    return monitored_batched(
+        PrivilegedVecEnv,
+        num_envs=args.n_envs,
+        seed=args.seed,
+        stage=args.stage,
+        mode=args.mode,
+        split=args.split,
+        max_episode_steps=args.episode_steps,
+        observation_options=observation_options(args),
+        continue_prob=args.continue_prob,
+        hold_steps=args.hold_steps,
+        detector=args.detector,
+        **args.rig_config,
+    )
 
 
 class _Spaces(gym.Env):

@@ -96,23 +96,29 @@ def _batched_vec_env(
     )
     if factory is None:
         return None
+    return monitored_batched(
+        factory,
+        num_envs=n_envs,
+        stage=stage,
+        mode=mode,
+        split=split,
+        max_episode_steps=episode_steps,
+        seed=seed,
+        observation_options=observation_options,
+        continue_prob=continue_prob,
+        hold_steps=hold_steps,
+        **overrides,
+    )
+
+
+def monitored_batched(factory, **kwargs):
+    """``factory(**kwargs)``, a batched SB3 VecEnv, monitored (episode figures and ``power``)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     with warnings.catch_warnings():
         # SB3 warns that the batched env has no render_mode attribute (it renders nothing).
         warnings.filterwarnings("ignore", message="The `render_mode` attribute")
-        venv = factory(
-            num_envs=n_envs,
-            stage=stage,
-            mode=mode,
-            split=split,
-            max_episode_steps=episode_steps,
-            seed=seed,
-            observation_options=observation_options,
-            continue_prob=continue_prob,
-            hold_steps=hold_steps,
-            **overrides,
-        )
+        venv = factory(**kwargs)
     return VecMonitor(venv, info_keywords=("power",))
 
 
