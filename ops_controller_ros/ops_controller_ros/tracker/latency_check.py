@@ -55,15 +55,6 @@ def pair_readings(commands, readings, latency: int):
     return np.array(us), np.array(ys), steps[-1] - steps
 
 
-def _finish(generator):
-    """Run a generator to its end; its return value."""
-    while True:
-        try:
-            next(generator)
-        except StopIteration as done:
-            return done.value
-
-
 def pairing_cost(
     stacker, period_fs, window, tolerance, rng, candidates=CANDIDATES, keep=KEEP, chunk=None
 ):
@@ -119,7 +110,7 @@ def measure_latency(
             chunk = None if scale is None else CHUNK
             job = pairing_cost(stacker, period_fs, window, tolerance, rng, chunk=chunk)
             if scale is None:
-                costs[latency] = _finish(job)
+                costs[latency] = advance(job)[1]  # (run to its end)
             else:
                 costs[latency] = yield from scaled(job, scale)
         if scale is None:
