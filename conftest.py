@@ -1,16 +1,16 @@
 """Fixtures of every test folder (packages' test/ and the integration tests in test/).
 
 Isolation: each test module gets its own ROS_DOMAIN_ID, and DDS discovery is kept on localhost.
-Under pytest-xdist (``make test`` runs ``-n auto``) each worker draws from a slice of the domains
-of its own, so two workers never share one; within a slice the modules take turns, offset by the
-pid so that two test runs on one machine rarely meet.
+Under pytest-xdist (``make test`` runs one worker more than cores) each worker draws from a
+slice of the domains of its own, so two workers never share one; within a slice the modules take
+turns, offset by the pid so that two test runs on one machine rarely meet.
 
 ``procs`` starts commands the way a user would (``ros2 run``) and stops every one of them (SIGINT,
 then SIGKILL) when the test ends; see ops_bench.processes (tools/ops_bench).
 
 Threads: the test process's own numpy work (the closed loops of the tracker and simulator tests)
 runs on one BLAS thread, as every node and CLI does (ops_contract.threads.limit_blas_threads;
-the processes a test starts limit themselves). ``make test`` already runs one worker per core; a
+the processes a test starts limit themselves). ``make test`` already keeps every core busy; a
 BLAS thread pool per worker on top of that waits for a core that another process holds (60
 readings of a tracker in a global search on the loaded 2-core machine: 56 s wall, 7 s on one).
 torch, when the test process imports it, runs on one thread likewise, as the policy node does

@@ -107,14 +107,15 @@ def test_a_knot_test_spread_over_readings_still_takes_knots():
     winner is tried again on the window it ends at: knots are taken (extreme mode's slopes
     turn every 40-120 steps; cut short, none would be), no test is cut, and without a budget
     nothing is spread. At 4 units a reading (a test of 31 units ends ~8 readings on) seeds
-    1000-1007 took 5-8 knots in 800 readings; at one unit a reading the winner is ~31 readings
-    stale and 0-2 were taken, so the run pins its units, not the machine's speed."""
-    spread = _knot_run(budget_ms=1e-6, spread=True, mode="extreme", steps=800, units=4)
+    1000-1007 took 5-8 knots in 800 readings, seeds 1001, 1003 and 1005 2-3 in 400 (unspread:
+    8-23); at one unit a reading the winner is ~31 readings stale and 0-2 were taken in 800, so
+    the run pins its units, not the machine's speed."""
+    spread = _knot_run(budget_ms=1e-6, spread=True, mode="extreme", steps=400, units=4)
     assert spread.knot_tests_cut == 0
     assert spread.knot_tests_spread > 0 and spread.knots > 0
-    cut = _knot_run(budget_ms=1e-6, spread=False, mode="extreme", steps=800)
+    cut = _knot_run(budget_ms=1e-6, spread=False, mode="extreme", steps=400)
     assert cut.knots == 0 and cut.knot_tests_cut > 0
-    whole = _knot_run(budget_ms=0.0, spread=True, mode="extreme", steps=800)  # not spread
+    whole = _knot_run(budget_ms=0.0, spread=True, mode="extreme", steps=400)  # not spread
     assert whole.knot_tests_spread == 0 and whole.knots > spread.knots
 
 
