@@ -334,8 +334,8 @@ class ControllerLoopNode(Node):
         if self.ctrl is None or self.ctrl.stage != delays.size:
             self._start_if_found()
             return
-        self._commands.on_setpoints(delays, now=time.monotonic())
-        if seq is not None and self._commands.is_pending(delays):
+        # (True: these are the pending command's set-points)
+        if self._commands.on_setpoints(delays, now=time.monotonic()) and seq is not None:
             first = self._command_step
             self._command_step = seq if first is None else min(first, seq)
 
