@@ -1,15 +1,17 @@
 """Delay commands of a free-running simulator, read once per step instead of once per message.
 
-A free-running simulator applies the latest valid command at its next step; what arrives in between
-only matters through that one. With a subscription callback, rclpy's executor runs Python for every
-message (~tens of microseconds each), so a flood on ``ops/delay_cmd`` - one careless script at
-30,000 messages/s - takes the simulator's CPU and its step rate with it (with a plain subscription
-the simulator fell to 80 steps/s and the lock to 26 %). Here the subscription belongs to a callback
-group that the executor never waits on; at each step :meth:`CommandInbox.take_latest` takes what
-queued in the DDS reader (serialized: a message is decoded once, not once per copy), checks each,
-and keeps the newest valid one. Identical serialized messages share one verdict, so a flood of one
-rejected message costs a dictionary lookup each. The reader keeps ``depth`` messages: a valid
-command is kept through a flood of up to ``depth`` messages between two steps (4000).
+A free-running simulator applies the latest valid command at its next step; what arrives in
+between only matters through that one. With a subscription callback, rclpy's executor runs
+Python for every message (~tens of microseconds each), so a flood on ``ops/delay_cmd`` - one
+careless script at 30,000 messages/s - takes the simulator's CPU and its step rate with it (with
+a plain subscription the simulator fell to 80 steps/s and the lock to 26 %). Here the
+subscription belongs to a callback group that the executor never waits on; at each step
+:meth:`CommandInbox.take_latest` takes what queued in the DDS reader (serialized: a message is
+read once, not once per copy, straight from its bytes:
+:func:`~ops_contract.ros_interface.array_of`), checks each, and keeps the newest valid one.
+Identical serialized messages share one verdict, so a flood of one rejected message costs a
+dictionary lookup each. The reader keeps ``depth`` messages: a valid command is kept through a
+flood of up to ``depth`` messages between two steps (4000).
 
 The events executor (``-p executor:=events``, ops_contract.executors) ignores callback groups: it
 takes each message as it comes (in C++) and passes it, serialized, to the subscription's
@@ -25,11 +27,13 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float32MultiArray
+
+from .ros_interface import MessageError, array_of
 
 #: Messages the reader keeps between two steps (KEEP_LAST: older ones are dropped by DDS).
 INBOX_DEPTH = 4000
@@ -50,17 +54,28 @@ class _NeverWaited(CallbackGroup):
         pass
 
 
-class CommandInbox:
-    """``check(msg)`` returns a problem (str) or None; ``take_latest`` returns the newest valid
-    message since the last call (or None) and counts the rejected ones by problem."""
+#: ``check(values)``: why a command's values (float32, its layout found right) cannot be used,
+#: or None.
+Check = Callable[[np.ndarray], "str | None"]
 
-    def __init__(
-        self,
-        node: Node,
-        topic: str,
-        check: Callable[[Float32MultiArray], str | None],
-        depth: int = INBOX_DEPTH,
-    ):
+
+def command_verdict(raw: bytes, check: Check) -> tuple[str | None, np.ndarray | None]:
+    """The problem of a serialized ``Float32MultiArray`` command (its layout's, its encoding's or
+    ``check``'s) and, when there is none, its values (float32)."""
+    try:
+        _, values = array_of(raw)
+    except MessageError as exc:
+        return str(exc), None
+    problem = check(values)
+    return problem, None if problem else values
+
+
+class CommandInbox:
+    """``check(values)`` returns a problem (str) or None (see :data:`Check`); ``take_latest``
+    returns the values of the newest valid command since the last call (or None) and counts the
+    rejected ones by problem."""
+
+    def __init__(self, node: Node, topic: str, check: Check, depth: int = INBOX_DEPTH):
         self._node = node
         self._check = check
         qos = QoSProfile(
@@ -81,21 +96,15 @@ class CommandInbox:
         self.taken = 0  # messages taken so far
         self._reported_at = float("-inf")
 
-    def _verdict(self, raw: bytes) -> tuple[str | None, Float32MultiArray | None]:
-        known = self._verdicts.get(raw)  # None: unknown, or valid (then it is decoded)
+    def _verdict(self, raw: bytes) -> tuple[str | None, np.ndarray | None]:
+        known = self._verdicts.get(raw)  # None: unknown, or valid (then it is read)
         if known is not None:
             return known, None
-        try:
-            msg = deserialize_message(raw, Float32MultiArray)
-        except Exception as exc:  # a malformed serialization: rejected like any bad message
-            problem = f"undecodable message ({type(exc).__name__})"
-            msg = None
-        else:
-            problem = self._check(msg)
+        problem, values = command_verdict(raw, self._check)
         if len(self._verdicts) >= _VERDICTS_KEPT:
             self._verdicts.clear()
         self._verdicts[raw] = problem
-        return problem, msg
+        return problem, values
 
     def _deliver(self, raw: bytes) -> None:
         self._delivered.append(raw)
@@ -111,14 +120,14 @@ class CommandInbox:
                     return raw
                 raw.append(got[0])
 
-    def take_latest(self) -> Float32MultiArray | None:
+    def take_latest(self) -> np.ndarray | None:
         queued = self._take_all()
         self.taken += len(queued)
         latest = None
         for raw in queued:
-            problem, msg = self._verdict(raw)
+            problem, values = self._verdict(raw)
             if problem is None:
-                latest = msg
+                latest = values
             else:
                 self.rejected[problem] = self.rejected.get(problem, 0) + 1
         return latest

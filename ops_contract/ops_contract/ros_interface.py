@@ -25,8 +25,10 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float32MultiArray, MultiArrayDimension
+from rclpy.serialization import deserialize_message
+from std_msgs.msg import Float32, Float32MultiArray, MultiArrayDimension
 
+from . import cdr
 from .config import LIMITS, MAX_STAGE
 from .heap import freeze_after_heavy_imports
 from .threads import limit_blas_threads
@@ -106,10 +108,39 @@ def float_array_msg(values, labels: Sequence[str] = ("stage",)) -> Float32MultiA
     return msg
 
 
+def float_array_bytes(values, labels: Sequence[str] = ("stage",)) -> bytes:
+    """:func:`float_array_msg`, serialized (what a publisher sends for it: publishing these
+    bytes skips building the message and converting it, :mod:`~ops_contract.cdr`)."""
+    return cdr.float_array_bytes(values, tuple(labels))
+
+
 def trace_msg(trace: np.ndarray, samples_per_slot: int) -> Float32MultiArray:
     """The detected trace as a (slot, sample) array message."""
     trace = np.asarray(trace, dtype=np.float32).reshape(-1, samples_per_slot)
     return float_array_msg(trace, labels=("slot", "sample"))
+
+
+def trace_bytes(trace: np.ndarray, samples_per_slot: int) -> bytes:
+    """:func:`trace_msg`, serialized (what a publisher sends for it)."""
+    return cdr.float_array_bytes(np.reshape(trace, (-1, samples_per_slot)), ("slot", "sample"))
+
+
+#: A serialized ``std_msgs/Float32`` of a value (what a publisher sends for the message).
+float32_bytes = cdr.float32_bytes
+
+
+def _shape(sizes: tuple[int, ...], data_offset: int, n: int) -> tuple[int, ...]:
+    """The shape a layout of these dimension sizes declares for ``n`` values ((n,) without
+    dimensions); MessageError when it does not describe them (see :func:`layout_shape`)."""
+    if data_offset != 0:
+        raise MessageError(f"layout data_offset is {data_offset}, expected 0")
+    if not sizes:
+        return (n,)
+    if math.prod(sizes) != n:
+        raise MessageError(
+            f"layout says {' x '.join(map(str, sizes))} but the message has {n} values"
+        )
+    return sizes
 
 
 def layout_shape(msg: Float32MultiArray) -> tuple[int, ...]:
@@ -117,23 +148,38 @@ def layout_shape(msg: Float32MultiArray) -> tuple[int, ...]:
 
     MessageError when the layout does not describe the data (sizes whose product is not the
     number of values, a data offset)."""
-    n = len(msg.data)
-    if msg.layout.data_offset != 0:
-        raise MessageError(f"layout data_offset is {msg.layout.data_offset}, expected 0")
-    if not msg.layout.dim:
-        return (n,)
-    shape = tuple(int(d.size) for d in msg.layout.dim)
-    if math.prod(shape) != n:
-        raise MessageError(
-            f"layout says {' x '.join(map(str, shape))} but the message has {n} values"
-        )
-    return shape
+    sizes = tuple(int(d.size) for d in msg.layout.dim)
+    return _shape(sizes, msg.layout.data_offset, len(msg.data))
 
 
-def check_layout(msg: Float32MultiArray) -> str | None:
-    """Why an array message's layout does not describe its data, or None."""
+def array_of(msg: Float32MultiArray | bytes) -> tuple[tuple[int, ...], np.ndarray]:
+    """The shape (:func:`layout_shape`) and the float32 values of an array message, or of its
+    serialized bytes (a subscription with ``raw=True``: read without building the message,
+    :mod:`~ops_contract.cdr`). MessageError when they do not hold a message whose layout
+    describes its data."""
+    if not isinstance(msg, bytes):
+        return layout_shape(msg), np.asarray(msg.data, dtype=np.float32)
     try:
-        layout_shape(msg)
+        sizes, offset, values = cdr.read_float_array(msg)
+    except cdr.UnknownEncoding:
+        return array_of(_deserialized(msg, Float32MultiArray))
+    except cdr.CdrError as exc:
+        raise MessageError(f"undecodable message ({exc})") from None
+    return _shape(sizes, offset, values.size), values
+
+
+def _deserialized(raw: bytes, msg_type):
+    try:
+        return deserialize_message(raw, msg_type)
+    except Exception as exc:  # malformed bytes: a message like any other bad one
+        raise MessageError(f"undecodable message ({type(exc).__name__})") from None
+
+
+def check_layout(msg: Float32MultiArray | bytes) -> str | None:
+    """Why an array message's (or its serialized bytes') layout does not describe its data,
+    or None."""
+    try:
+        array_of(msg)
     except MessageError as exc:
         return str(exc)
     return None
@@ -150,22 +196,24 @@ def _bounded(data, limit: float, what: str) -> np.ndarray:
     return arr
 
 
-def delays_from_msg(msg: Float32MultiArray) -> np.ndarray:
-    """The set-points (fs) of an ``ops/delays`` message; MessageError when it is malformed."""
-    shape = layout_shape(msg)
+def delays_from_msg(msg: Float32MultiArray | bytes) -> np.ndarray:
+    """The set-points (fs) of an ``ops/delays`` message (or its serialized bytes); MessageError
+    when it is malformed."""
+    shape, values = array_of(msg)
     if len(shape) != 1 or not 1 <= shape[0] <= MAX_STAGE:
         raise MessageError(
             f"delays of shape {shape}: expected one value per stage, 1 to {MAX_STAGE} values"
         )
-    return _bounded(msg.data, MAX_DELAY_FS, "delay").astype(np.float64)
+    return _bounded(values, MAX_DELAY_FS, "delay").astype(np.float64)
 
 
-def trace_from_msg(msg: Float32MultiArray) -> tuple[np.ndarray, int]:
-    """Flat trace and samples per slot from an intensity message (inverse of :func:`trace_msg`).
+def trace_from_msg(msg: Float32MultiArray | bytes) -> tuple[np.ndarray, int]:
+    """Flat trace and samples per slot from an intensity message or its serialized bytes
+    (inverse of :func:`trace_msg`).
 
     MessageError unless the layout is (slot, sample) (or flat: one sample per slot) with 2^N - 1
     slots, N = 1 .. MAX_STAGE, samples per slot within ``LIMITS``, and finite, bounded values."""
-    shape = layout_shape(msg)
+    shape, values = array_of(msg)
     if len(shape) not in (1, 2):
         raise MessageError(f"trace of shape {shape}: expected (slot, sample)")
     slots, samples = (shape[0], 1) if len(shape) == 1 else shape
@@ -175,13 +223,24 @@ def trace_from_msg(msg: Float32MultiArray) -> tuple[np.ndarray, int]:
     stage = (slots + 1).bit_length() - 1
     if slots + 1 != 2**stage or not 1 <= stage <= MAX_STAGE:
         raise MessageError(f"{slots} pulse slots (a stage-N trace has 2^N - 1, N = 1 .. 10)")
-    return _bounded(msg.data, MAX_READING, "trace sample"), samples
+    return _bounded(values, MAX_READING, "trace sample"), samples
 
 
-def power_from_msg(msg) -> float:
-    """The value of an ``ops/power`` (or ``ops/reward``) message; MessageError unless finite and
-    within +-MAX_READING."""
-    return float(_bounded([msg.data], MAX_READING, "reading")[0])
+def power_from_msg(msg: Float32 | bytes) -> float:
+    """The value of an ``ops/power`` (or ``ops/reward``) message or its serialized bytes;
+    MessageError unless finite and within +-MAX_READING."""
+    if isinstance(msg, bytes):
+        try:
+            value = cdr.read_float32(msg)
+        except cdr.UnknownEncoding:
+            value = _deserialized(msg, Float32).data
+        except cdr.CdrError as exc:
+            raise MessageError(f"undecodable message ({exc})") from None
+    else:
+        value = msg.data
+    if math.isfinite(value) and abs(value) <= MAX_READING:
+        return float(value)
+    raise MessageError(f"reading {value!r} at index 0 (allowed: finite, |x| <= {MAX_READING:g})")
 
 
 class MessageGuard:
@@ -216,13 +275,14 @@ class MessageGuard:
         )
 
 
-def check_command(values: Sequence[float], stage: int) -> str | None:
+def check_command(values: Sequence[float] | np.ndarray, stage: int) -> str | None:
     """Why a delay command cannot be used, or None when it can."""
     if len(values) != stage:
         return f"expected {stage} delays (one per stage), got {len(values)}"
-    bad = [i for i, v in enumerate(values) if not math.isfinite(v)]
-    if bad:
-        return f"non-finite delay at index {bad[0]} ({values[bad[0]]})"
+    finite = np.isfinite(values)
+    if not finite.all():
+        bad = int(finite.argmin())
+        return f"non-finite delay at index {bad} ({float(values[bad])})"
     return None
 
 

@@ -66,7 +66,7 @@ def test_the_command_inbox_takes_every_command_under_either_executor(context, ki
     node = rclpy.create_node(f"inbox_{kind}", context=context)
     executor = make_executor(kind, context)
     executor.add_node(node)
-    inbox = CommandInbox(node, "inbox_probe", lambda m: None if len(m.data) == 2 else "length")
+    inbox = CommandInbox(node, "inbox_probe", lambda v: None if len(v) == 2 else "length")
     pub = node.create_publisher(Float32MultiArray, "inbox_probe", 10)
     try:
         spin_until(executor, lambda: pub.get_subscription_count() > 0)
@@ -75,9 +75,9 @@ def test_the_command_inbox_takes_every_command_under_either_executor(context, ki
         taken = []
 
         def took_all() -> bool:
-            msg = inbox.take_latest()
-            if msg is not None:
-                taken.append(list(msg.data))
+            values = inbox.take_latest()
+            if values is not None:
+                taken.append(values.tolist())
             return inbox.taken >= 3
 
         spin_until(executor, took_all)

@@ -48,7 +48,7 @@ from ops_contract.ros_interface import (
     MessageGuard,
     ParameterError,
     delays_from_msg,
-    float_array_msg,
+    float_array_bytes,
     power_from_msg,
     trace_from_msg,
 )
@@ -137,14 +137,13 @@ class ControllerLoopNode(Node):
         # latched subscription gives the set-points at start (a lockstep simulator publishes
         # only when commanded); the best-effort ones carry the running loop: a lost message
         # is not waited for (a reliable one costs seconds per loss on a lossy link).
-        # (each callback takes the message info: its sequence number pairs a step's messages)
-        subscribe_with_info(self, Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
-        subscribe_with_info(self, Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_READINGS)
-        subscribe_with_info(
-            self, Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS
-        )
+        # (each callback takes the message info: its sequence number pairs a step's messages;
+        # and the message serialized, read by ops_contract.cdr without building its objects)
+        self._subscribe(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
+        self._subscribe(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_READINGS)
+        self._subscribe(Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS)
         self._applied_delays = False  # see use_applied_delays
-        subscribe_with_info(self, Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
+        self._subscribe(Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
         # Re-sends are due a few sample periods after a command (CommandTracker.resend_after).
         self.create_timer(0.01, guarded(self, self._watchdog))
@@ -153,6 +152,10 @@ class ControllerLoopNode(Node):
         self.get_logger().info(
             f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)} (rig: {told})"
         )
+
+    def _subscribe(self, msg_type, topic: str, callback, qos) -> None:
+        """``callback(raw, info)`` for each message on ``topic``: its bytes and MessageInfo."""
+        subscribe_with_info(self, msg_type, topic, callback, qos, raw=True)
 
     def _range_keeper(self) -> RangeKeeper | None:
         """The keeper of the rig file's set-point range (None without one), said on the log."""
@@ -243,9 +246,7 @@ class ControllerLoopNode(Node):
         step (``ops/delays_actual``, an oracle no rig has: the authors' observation set), as
         ``observe(..., applied=)``; a reading waits for them."""
         self._applied_delays = True
-        subscribe_with_info(
-            self, Float32MultiArray, TOPIC_DELAYS_ACTUAL, self._on_actual, QOS_READINGS
-        )
+        self._subscribe(Float32MultiArray, TOPIC_DELAYS_ACTUAL, self._on_actual, QOS_READINGS)
 
     # ------------------------------------------------------------------ subclass hooks
     def build_controller(self, delays: np.ndarray, samples_per_slot: int):
@@ -277,7 +278,7 @@ class ControllerLoopNode(Node):
         command = self._commands.sent(command, time.monotonic())
         if not self._commands.resent:
             self._command_step = None
-        self._pub_cmd.publish(float_array_msg(command))
+        self._pub_cmd.publish(float_array_bytes(command))
 
     def _start(self):
         stage = self._delays.size
@@ -322,7 +323,7 @@ class ControllerLoopNode(Node):
             return False
         return True
 
-    def _on_delays(self, msg: Float32MultiArray, info):
+    def _on_delays(self, msg: bytes, info):
         seq = sequence_number(info)
         if self._pairing.is_copy("delays", seq):
             return  # (every step's comes twice: a copy is not read again)
@@ -333,12 +334,12 @@ class ControllerLoopNode(Node):
         if self.ctrl is None or self.ctrl.stage != delays.size:
             self._start_if_found()
             return
-        self._commands.on_setpoints(delays, now=time.monotonic())
-        if seq is not None and self._commands.is_pending(delays):
+        # (True: these are the pending command's set-points)
+        if self._commands.on_setpoints(delays, now=time.monotonic()) and seq is not None:
             first = self._command_step
             self._command_step = seq if first is None else min(first, seq)
 
-    def _on_intensity(self, msg: Float32MultiArray, info):
+    def _on_intensity(self, msg: bytes, info):
         trace = self._guard.take(TOPIC_INTENSITY, trace_from_msg, msg)
         if trace is None or not self._pairing.take("trace", sequence_number(info), trace):
             return
@@ -346,7 +347,7 @@ class ControllerLoopNode(Node):
         if self.ctrl is None or self.ctrl.stage != self._delays.size:
             self._start_if_found()
 
-    def _on_actual(self, msg: Float32MultiArray, info):
+    def _on_actual(self, msg: bytes, info):
         actual = self._guard.take(TOPIC_DELAYS_ACTUAL, delays_from_msg, msg)
         if actual is None:
             return
@@ -358,7 +359,7 @@ class ControllerLoopNode(Node):
             return
         self._pairing.take("actual", sequence_number(info), actual)
 
-    def _on_power(self, msg: Float32, info):
+    def _on_power(self, msg: bytes, info):
         # The MessageInfo comes through subscribe_with_info (rclpy passes it only to a callback
         # it takes for one that needs it: with a plain ``info=None`` default it never did, so
         # the steps between readings were always taken as 1 over DDS).
@@ -440,7 +441,7 @@ class ControllerLoopNode(Node):
                 # A lockstep simulator published its trace before we listened: ask for a step
                 # at the present set-points (a command that moves nothing).
                 self._next_allowed = now + self._commands.timeout_s
-                self._pub_cmd.publish(float_array_msg(self._delays))
+                self._pub_cmd.publish(float_array_bytes(self._delays))
             return
         if self._commands.pending is None:
             if now >= self._next_allowed:  # rate-limited: the next command is due

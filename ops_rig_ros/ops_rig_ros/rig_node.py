@@ -31,7 +31,6 @@ from ops_contract.ros_interface import (
     TOPIC_INTENSITY,
     TOPIC_POWER,
     ParameterError,
-    check_layout,
     float_array_msg,
     run_node,
     trace_msg,
@@ -118,11 +117,8 @@ class RigNode(Node):
     def fresh(self) -> bool:
         return time.monotonic() - self.last_good <= self.config.stale_s
 
-    def _command_problem(self, msg: Float32MultiArray) -> str | None:
-        problem = check_layout(msg)
-        if problem:
-            return problem
-        return command_volts(list(msg.data), self.stage, self.cal, self.limits)[1]
+    def _command_problem(self, values: np.ndarray) -> str | None:
+        return command_volts(values.tolist(), self.stage, self.cal, self.limits)[1]
 
     # ------------------------------------------------------------------ the loop
     def _connect(self, now: float) -> None:
@@ -148,7 +144,7 @@ class RigNode(Node):
                 self._warn("scope", f"scope unavailable: {exc} (retrying)", 10.0)
 
     def _take_command(self) -> None:
-        msg = self._inbox.take_latest()
+        values = self._inbox.take_latest()
         report = self._inbox.rejections_to_report(_WARN_PERIOD_S)
         if report is not None:
             total, problems = report
@@ -156,12 +152,12 @@ class RigNode(Node):
                 f"refused {total} delay command(s) ({problems}); the piezos hold"
             )
             self.last_error = f"refused delay command: {problems}"
-        if msg is None:
+        if values is None:
             return
         if not self.fresh:
             self._warn("stale_cmd", "delay command ignored: no fresh trace (holding the piezos)")
             return
-        volts, _ = command_volts(list(msg.data), self.stage, self.cal, self.limits)
+        volts, _ = command_volts(values.tolist(), self.stage, self.cal, self.limits)
         if volts is not None:
             self.target = volts
 

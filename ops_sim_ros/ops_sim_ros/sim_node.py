@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from ops_contract.command_inbox import CommandInbox
+from ops_contract.command_inbox import CommandInbox, command_verdict
 from ops_contract.config import (
     DETECTORS,
     LIMITS,
@@ -49,10 +49,10 @@ from ops_contract.ros_interface import (
     TOPIC_REWARD,
     ParameterError,
     check_command,
-    check_layout,
-    float_array_msg,
+    float32_bytes,
+    float_array_bytes,
     run_node,
-    trace_msg,
+    trace_bytes,
 )
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -317,16 +317,17 @@ class SimNode(Node):
         the volatile topics only where someone subscribes (each message costs tens of µs to
         build and publish, at every step)."""
         r = self._result
-        self._pub_delays.publish(float_array_msg(r.setpoints_fs[0]))
+        # (serialized here: the same bytes as the messages', without building them)
+        self._pub_delays.publish(float_array_bytes(r.setpoints_fs[0]))
         if self._pub_actual.get_subscription_count():
-            self._pub_actual.publish(float_array_msg(r.applied_fs[0]))
+            self._pub_actual.publish(float_array_bytes(r.applied_fs[0]))
         if self._pub_intensity.get_subscription_count():
             trace = self._sim.trace(r)[0]
-            self._pub_intensity.publish(trace_msg(trace, self._config.samples_per_slot))
+            self._pub_intensity.publish(trace_bytes(trace, self._config.samples_per_slot))
         if self._pub_power.get_subscription_count():
-            self._pub_power.publish(Float32(data=float(r.power[0])))
+            self._pub_power.publish(float32_bytes(r.power[0]))
         if self._pub_reward.get_subscription_count():
-            self._pub_reward.publish(Float32(data=float(r.reward[0])))
+            self._pub_reward.publish(float32_bytes(r.reward[0]))
 
     def _publish_diagnostics(self):
         status = DiagnosticStatus(
@@ -369,7 +370,7 @@ class SimNode(Node):
                 self._inbox.destroy()
                 self._inbox = None
             self._cmd_sub = self.create_subscription(
-                Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE
+                Float32MultiArray, TOPIC_DELAY_CMD, self._on_command, QOS_RELIABLE, raw=True
             )
         elif not lockstep and self._inbox is None:
             if self._cmd_sub is not None:
@@ -377,12 +378,12 @@ class SimNode(Node):
                 self._cmd_sub = None
             self._inbox = CommandInbox(self, TOPIC_DELAY_CMD, self._command_problem)
 
-    def _command_problem(self, msg: Float32MultiArray) -> str | None:
-        return check_layout(msg) or check_command(list(msg.data), self._config.stage)
+    def _command_problem(self, values: np.ndarray) -> str | None:
+        return check_command(values, self._config.stage)
 
     def _take_commands(self) -> bool:
         """Apply the newest valid command queued since the last step; True if there was one."""
-        msg = self._inbox.take_latest()
+        values = self._inbox.take_latest()
         report = self._inbox.rejections_to_report(_WARN_PERIOD_S)
         if report is not None:
             total, problems = report
@@ -390,27 +391,27 @@ class SimNode(Node):
                 f"rejected {total} delay command(s) in the last {_WARN_PERIOD_S:g} s or so "
                 f"({problems}); set-points unchanged"
             )
-        if msg is None:
+        if values is None:
             return False
-        self._apply_command(msg)
+        self._apply_command(values)
         return True
 
-    def _on_command(self, msg: Float32MultiArray):
-        problem = self._command_problem(msg)
+    def _on_command(self, raw: bytes):
+        problem, values = command_verdict(raw, self._command_problem)
         if problem:
             self.get_logger().warning(
                 f"rejected delay command: {problem}; set-points unchanged",
                 throttle_duration_sec=_WARN_PERIOD_S,
             )
             return
-        self._apply_command(msg)
+        self._apply_command(values)
         if self._values["lockstep"]:
             self._step()
 
-    def _apply_command(self, msg: Float32MultiArray):
-        command = np.asarray(msg.data, dtype=np.float64)
+    def _apply_command(self, values: np.ndarray):
+        command = values.astype(np.float64)
         limit = self._config.actuator_range_fs
-        if np.any(np.abs(command) > limit):
+        if np.abs(command).max() > limit:
             self.get_logger().warning(
                 f"delay command beyond the actuator range +-{limit:.1f} fs: clipped",
                 throttle_duration_sec=_WARN_PERIOD_S,
