@@ -7,6 +7,9 @@ import signal
 import numpy as np
 import pytest
 from ops_bench.processes import assert_no_traceback, run_ros2
+from ops_contract.config import make_config
+from ops_controller_ros.tracker import PhaseTracker
+from ops_controller_ros.tracker_node import physical_time
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
 
@@ -66,6 +69,24 @@ def test_bad_parameter_stops_the_tracker_before_it_spins(procs):
     assert tracker.wait_exit(30) == 2
     assert "detector" in tracker.output and "polarizer, total" in tracker.output
     assert_no_traceback(tracker.output)
+    # A vibration is read at the loop's period, which the messages do not carry.
+    tracker = start(procs, "tracker2", "ops_controller_ros", "tracker", "vibration:=lab")
+    assert tracker.wait_exit(30) == 2
+    assert "vibration lab needs step_s, the loop's period in s" in tracker.output, tracker.output
+    assert_no_traceback(tracker.output)
+
+
+def test_a_told_vibration_puts_the_model_in_physical_time():
+    """vibration and step_s make the node's model a physical-time one (time_base seconds): the
+    tracker built from it allows for the vibration at that step; without one the model is the
+    step-based one every other controller node builds."""
+    assert physical_time({"vibration": "none", "step_s": 0.02}) == {}
+    told = physical_time({"vibration": "lab", "step_s": 0.02})
+    config = make_config(5, "hard", "test", **told)
+    assert (config.time_base, config.step_s, config.vibration) == ("seconds", 0.02, "lab")
+    tracker = PhaseTracker(config, seed=1)
+    assert tracker.rig.vibration is not None and tracker.rig.vibration.step_s == 0.02
+    assert PhaseTracker(make_config(5, "hard", "test"), seed=1).rig.vibration is None
 
 
 @pytest.mark.parametrize("exe", ["tracker", "spgd"])

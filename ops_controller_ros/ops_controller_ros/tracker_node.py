@@ -14,7 +14,7 @@ samples per slot come from the messages. The tracker's own parameters are
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from ops_contract.config import DETECTORS
+from ops_contract.config import DETECTORS, LIMITS, VIBRATIONS
 from ops_contract.node_params import ParamSpec
 from ops_contract.rig_file import OPTICS_DEFAULTS, OPTICS_LIMITS
 from ops_contract.ros_interface import QOS_RELIABLE, TOPIC_DIAGNOSTICS, ParameterError, run_node
@@ -47,10 +47,46 @@ MODEL_PARAMS = [
     ),
     ParamSpec("detector", OPTICS_DEFAULTS["detector"], "what the detector sees", choices=DETECTORS),
 ]
+#: The lines' vibration the fits allow for, in the physical time of the loop's period: a
+#: simulator under time_base seconds (its rate_hz) or a rig has one; the node cannot read it
+#: from the messages, so it is told (docs/loop_rate.md, "The tracker under vibration").
+VIBRATION_PARAMS = [
+    ParamSpec(
+        "vibration",
+        "none",
+        "the delay lines' vibration the fits allow for: none, or a preset of the simulator's "
+        "(lab, open), read at step_s",
+        choices=VIBRATIONS,
+    ),
+    ParamSpec(
+        "step_s",
+        -1.0,
+        "the loop's period in s, which a vibration is read at (the simulator's 1 / rate_hz "
+        "under time_base seconds); -1: none told (a vibration then stops the node)",
+        low=LIMITS["step_s"][0],
+        high=LIMITS["step_s"][1],
+        special=(-1.0,),
+    ),
+]
 # The tracker's own parameters are generated from TrackerParams' declarations (one default set
 # with evaluate; the node adds only real-time caps, docs/tracker.md); the rig's are every
 # controller node's (ControllerLoopNode, ops_contract.rig_params), and so is rig_config.
-PARAMS = [*MODEL_PARAMS, *node_param_specs()]
+PARAMS = [*MODEL_PARAMS, *VIBRATION_PARAMS, *node_param_specs()]
+
+
+def physical_time(values: dict) -> dict:
+    """The model's time base for a told vibration (``make_config`` keywords): the vibration at
+    step_s seconds a step, the walk and drift per second; nothing without one. ParameterError
+    when a vibration comes without its step_s."""
+    if values["vibration"] == "none":
+        return {}
+    if values["step_s"] == -1:
+        step = VIBRATION_PARAMS[1]
+        raise ParameterError(
+            f"vibration {values['vibration']} needs step_s, the loop's period in s "
+            f"({step.allowed.removeprefix('-1 or ')})"
+        )
+    return {"time_base": "seconds", "step_s": values["step_s"], "vibration": values["vibration"]}
 
 
 class TrackerNode(ControllerLoopNode):
@@ -80,7 +116,12 @@ class TrackerNode(ControllerLoopNode):
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
         self.nominal_model(**self._model)  # checked before the node spins
-        for line in (note, hop_note, power_note):
+        told = physical_time(self.values)
+        vibration_note = told and (
+            f"vibration {told['vibration']} told, read at step_s {told['step_s']:g} s: the fits "
+            "follow what one step keeps and take the rest as noise of each reading"
+        )
+        for line in (note, hop_note, power_note, vibration_note):
             if line:
                 self.get_logger().info(line)
         # What the online calibration estimates (wavelength_nm, pulse_fwhm_fs, detector_gain,
@@ -91,6 +132,10 @@ class TrackerNode(ControllerLoopNode):
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self._latency_changes = 0
         self._false_locks = 0
+
+    def nominal_model(self, **model):
+        """The rig's nominal model, in physical time when a vibration is told (physical_time)."""
+        return super().nominal_model(**model, **physical_time(self.values))
 
     def after_reading(self) -> None:
         """A latency the readings fit better than the told one: said on the log
