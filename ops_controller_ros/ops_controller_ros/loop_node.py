@@ -5,8 +5,9 @@ Pairing of readings with set-points: the simulator publishes ``ops/delays`` (the
 step), then ``ops/intensity`` and ``ops/power``. After sending a command the node waits for a
 delays message equal to it (:class:`CommandTracker`); a power reading is used only when its step
 (by DDS sequence number, :class:`StepPairing`) is not before the first step reported on the
-command's set-points, with the trace of that same step, so a reading never predates its command
-and never mixes two steps (without sequence numbers: the latest set-points must equal
+command's set-points, with the trace of that same step (a controller that reads the power alone,
+:attr:`ControllerLoopNode.reads_trace` False, takes no trace), so a reading never predates its
+command and never mixes two steps (without sequence numbers: the latest set-points must equal
 the command, and the latest trace is taken). The stage count (and the trace's samples per slot)
 come from the messages. If no matching reading arrives within ``timeout_s`` (simulator slow,
 restarted or gone) the command is sent again; a simulator that comes back with another stage
@@ -94,6 +95,10 @@ class ControllerLoopNode(Node):
     #: True: the controller keeps the rig's range itself (built with it, as the tracker is); the
     #: node then only clips. False: the node moves the commands and tells the controller.
     keeps_own_range = False
+    #: False: the controller reads the power alone (SPGD-PID): the node does not subscribe to
+    #: ops/intensity, so a simulator with no other reader of it does not build or send the
+    #: trace (a step of the loop then moves one message less each way).
+    reads_trace = True
 
     def __init__(self, node_name: str, params: list[ParamSpec]):
         super().__init__(node_name)
@@ -141,7 +146,8 @@ class ControllerLoopNode(Node):
         # and the message serialized, read by ops_contract.cdr without building its objects)
         self._subscribe(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
         self._subscribe(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_READINGS)
-        self._subscribe(Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS)
+        if self.reads_trace:
+            self._subscribe(Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS)
         self._applied_delays = False  # see use_applied_delays
         self._subscribe(Float32, TOPIC_POWER, self._on_power, QOS_READINGS)
         self._pub_cmd = self.create_publisher(Float32MultiArray, TOPIC_DELAY_CMD, QOS_RELIABLE)
@@ -286,7 +292,7 @@ class ControllerLoopNode(Node):
             self.get_logger().warning(
                 f"simulator now has {stage} stages (was {self.ctrl.stage}): restarting"
             )
-        self.ctrl = self._build(self._delays, self._trace[1])
+        self.ctrl = self._build(self._delays, self._trace[1] if self.reads_trace else None)
         if self.ctrl is None:
             return
         self._range_moves = 0  # the new controller's moves
@@ -313,10 +319,10 @@ class ControllerLoopNode(Node):
     def _start_if_found(self) -> bool:
         """(Re)start when set-points and trace agree on a stage other than the controller's
         (the trace tells the samples per slot); True when the controller runs that stage."""
-        if self._delays is None or self._trace is None:
+        if self._delays is None or (self.reads_trace and self._trace is None):
             return False
         stage = self._delays.size
-        if self._trace[0].size != (2**stage - 1) * self._trace[1]:
+        if self.reads_trace and self._trace[0].size != (2**stage - 1) * self._trace[1]:
             return False  # one of them is from another stage: wait for both
         if self.ctrl is None or self.ctrl.stage != stage:
             self._start()
@@ -371,10 +377,11 @@ class ControllerLoopNode(Node):
         self._last_power_at = time.monotonic()
         if power is None or self.ctrl is None or not self._is_reading(seq):
             return
-        trace, samples = self._pairing.kept_for("trace", seq)
-        energies = pulse_energies_from_trace(trace, samples)
-        if energies.size != 2**self.ctrl.stage - 1:
-            return  # a trace of another stage (the simulator is restarting)
+        energies = None
+        if self.reads_trace:
+            energies = pulse_energies_from_trace(*self._pairing.kept_for("trace", seq))
+            if energies.size != 2**self.ctrl.stage - 1:
+                return  # a trace of another stage (the simulator is restarting)
         # Steps of a free-running simulator that ran before our command came (docs/interfaces.md)
         steps = steps_between(self._last_power_seq, seq)
         self.late_steps += steps - 1
@@ -421,7 +428,9 @@ class ControllerLoopNode(Node):
             return False
         if self._pairing.step_of(seq, "delays") < first:
             return False
-        kept = ("trace", "actual") if self._applied_delays else ("trace",)
+        kept = [
+            t for t, used in (("trace", self.reads_trace), ("actual", self._applied_delays)) if used
+        ]
         return all(self._pairing.kept_for(t, seq) is not None for t in kept)
 
     def _think(self):
@@ -437,7 +446,8 @@ class ControllerLoopNode(Node):
         now = time.monotonic()
         self._status.check(now)
         if self.ctrl is None:
-            if self._delays is not None and self._trace is None and now >= self._next_allowed:
+            waiting = self._delays is not None and self._trace is None and self.reads_trace
+            if waiting and now >= self._next_allowed:
                 # A lockstep simulator published its trace before we listened: ask for a step
                 # at the present set-points (a command that moves nothing).
                 self._next_allowed = now + self._commands.timeout_s

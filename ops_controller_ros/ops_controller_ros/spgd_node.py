@@ -24,6 +24,8 @@ _NAMES = tuple(f.name for f in fields(SpgdParams))
 
 
 class SpgdNode(ControllerLoopNode):
+    reads_trace = False  # SPGD-PID climbs the power alone
+
     def __init__(self):
         super().__init__("ops_spgd", PARAMS)
         try:
