@@ -283,7 +283,8 @@ def test_malformed_messages_on_every_topic_are_dropped_and_the_loops_go_on(rig):
                 # ops/delays with the simulator's latched QoS: the controllers ask for it.
                 qos = QOS_STATE if topic == "ops/delays" else QOS_RELIABLE
                 pubs.append((node.create_publisher(mtype, f"{ns}/{topic}", qos), bad))
-                if topic != "ops/reward":  # (no node of /s and /p subscribes the reward)
+                # (no node of /s and /p subscribes the reward; SPGD-PID on /s reads no trace)
+                if topic != "ops/reward" and (ns, topic) != ("/s", "ops/intensity"):
                     subscribed.append(pubs[-1][0])
         # Until every subscriber of the rig has matched us: each topic has several (the tracker
         # and the monitor on /t/ops/intensity), and our messages are volatile, so one that has

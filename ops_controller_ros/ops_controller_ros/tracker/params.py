@@ -157,8 +157,8 @@ class TrackerParams:
     # keep at least vibration_follow of their value from one reading to the next add to the
     # walk the path follows, the others are noise of each reading (.vibration). "model": the rig
     # model's vibration, read at its step_s (none under time_base step).
-    # Not a node parameter: a node's model has no physical time to read a vibration at its
-    # loop's step.
+    # Not a node parameter: the tracker node's own vibration and step_s put its model in
+    # physical time (tracker_node.physical_time), and this stays "model" there.
     vibration: str = _declare(
         "model",
         "the delay lines' vibration the fits allow for: a preset, none, or model (the rig model's)",
