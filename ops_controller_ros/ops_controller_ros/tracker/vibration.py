@@ -28,6 +28,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from .weights import Readings
+
 #: Points of the floor's integral over its band (log-spaced).
 FLOOR_POINTS = 2001
 #: Draws of the fast vibration that give a reading's mean and variance under it.
@@ -144,16 +146,8 @@ class ShakenStacker:
 
     def evaluate(self, delays_fs):
         out = self.inner.evaluate(delays_fs)
-        return _Shaken(out.slot_energies + self.bias[:-1], out.power + self.bias[-1])
+        return Readings(out.slot_energies + self.bias[:-1], out.power + self.bias[-1])
 
     def energies_and_power(self, d: np.ndarray):
         energies, power = self.inner.energies_and_power(d)
         return energies + self.bias[:-1], power + self.bias[-1]
-
-
-class _Shaken:
-    __slots__ = ("power", "slot_energies")
-
-    def __init__(self, slot_energies, power):
-        self.slot_energies = slot_energies
-        self.power = power

@@ -25,7 +25,7 @@ class WeightedStacker:
 
     def evaluate(self, delays_fs):
         out = self.inner.evaluate(delays_fs)
-        return _Scaled(out.slot_energies * self.weights[:-1], out.power * self.weights[-1])
+        return Readings(out.slot_energies * self.weights[:-1], out.power * self.weights[-1])
 
     def energies_and_power(self, d: np.ndarray):
         """Weighed slot energies (B, S) and power (B,) of a checked (B, N) float64 array of
@@ -34,7 +34,9 @@ class WeightedStacker:
         return energies * self.weights[:-1], power * self.weights[-1]
 
 
-class _Scaled:
+class Readings:
+    """What the fits read of a wrapped stacker's ``evaluate``: slot energies and power."""
+
     __slots__ = ("power", "slot_energies")
 
     def __init__(self, slot_energies, power):
