@@ -4,7 +4,7 @@ Topic names are relative (``ops/...``) so that ``--ros-args -r __ns:=/rig2`` mov
 Delays are femtoseconds relative to each stage's nominal stacking delay (see docs/interfaces.md).
 
 Every message a node takes in goes through one rule (:func:`delays_from_msg`,
-:func:`trace_from_msg`, :func:`power_from_msg`, :func:`check_layout`): shape, layout, finiteness and
+:func:`trace_from_msg`, :func:`power_from_msg`, :func:`array_of`): shape, layout, finiteness and
 magnitude; what breaks it is dropped with a throttled warning (:class:`MessageGuard`), so no
 message can stop a node.
 """
@@ -173,16 +173,6 @@ def _deserialized(raw: bytes, msg_type):
         return deserialize_message(raw, msg_type)
     except Exception as exc:  # malformed bytes: a message like any other bad one
         raise MessageError(f"undecodable message ({type(exc).__name__})") from None
-
-
-def check_layout(msg: Float32MultiArray | bytes) -> str | None:
-    """Why an array message's (or its serialized bytes') layout does not describe its data,
-    or None."""
-    try:
-        array_of(msg)
-    except MessageError as exc:
-        return str(exc)
-    return None
 
 
 def _bounded(data, limit: float, what: str) -> np.ndarray:
