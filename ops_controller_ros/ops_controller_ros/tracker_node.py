@@ -50,6 +50,15 @@ MODEL_PARAMS = [
 #: The lines' vibration the fits allow for, in the physical time of the loop's period: a
 #: simulator under time_base seconds (its rate_hz) or a rig has one; the node cannot read it
 #: from the messages, so it is told (docs/loop_rate.md, "The tracker under vibration").
+STEP_S = ParamSpec(
+    "step_s",
+    -1.0,
+    "the loop's period in s, which a vibration is read at (the simulator's 1 / rate_hz "
+    "under time_base seconds); -1: none told (a vibration then stops the node)",
+    low=LIMITS["step_s"][0],
+    high=LIMITS["step_s"][1],
+    special=(-1.0,),
+)
 VIBRATION_PARAMS = [
     ParamSpec(
         "vibration",
@@ -58,15 +67,7 @@ VIBRATION_PARAMS = [
         "(lab, open), read at step_s",
         choices=VIBRATIONS,
     ),
-    ParamSpec(
-        "step_s",
-        -1.0,
-        "the loop's period in s, which a vibration is read at (the simulator's 1 / rate_hz "
-        "under time_base seconds); -1: none told (a vibration then stops the node)",
-        low=LIMITS["step_s"][0],
-        high=LIMITS["step_s"][1],
-        special=(-1.0,),
-    ),
+    STEP_S,
 ]
 # The tracker's own parameters are generated from TrackerParams' declarations (one default set
 # with evaluate; the node adds only real-time caps, docs/tracker.md); the rig's are every
@@ -81,10 +82,9 @@ def physical_time(values: dict) -> dict:
     if values["vibration"] == "none":
         return {}
     if values["step_s"] == -1:
-        step = VIBRATION_PARAMS[1]
         raise ParameterError(
             f"vibration {values['vibration']} needs step_s, the loop's period in s "
-            f"({step.allowed.removeprefix('-1 or ')})"
+            f"({STEP_S.allowed.removeprefix('-1 or ')})"
         )
     return {"time_base": "seconds", "step_s": values["step_s"], "vibration": values["vibration"]}
 
