@@ -288,15 +288,33 @@ def test_nodes_exit_cleanly_on_signals(procs, tmp_path, sig):
     assert (tmp_path / "m.png").stat().st_size > 10_000
 
 
-def test_spgd_survives_a_simulator_restart(procs, observer):
+def _delays_readers(observer, node: str) -> list[str]:
+    """The durability of each subscription ``node`` holds on /ops/delays, as DDS reports it."""
+    infos = observer.node.get_subscriptions_info_by_topic("/ops/delays")
+    return sorted(i.qos_profile.durability.name for i in infos if i.node_name == node)
+
+
+@pytest.mark.parametrize("lockstep", [False, True], ids=["free-running", "lockstep"])
+def test_spgd_survives_a_simulator_restart(procs, observer, lockstep):
+    """A simulator restarted with another stage is found again, free-running or lockstep. A
+    lockstep one refuses the old stage's re-sent commands and publishes its set-points only
+    latched: the controller, which drops its latched subscription while the loop runs (every
+    step's set-points would come twice), takes it back while the simulator is silent."""
     sim = start_sim(procs, "stage:=2", "mode:=easy", "seed:=8", name="sim_a")
     spgd = procs.ros2(
         "run", "ops_controller_ros", "spgd", "--ros-args", "-p", "timeout_s:=0.3", name="spgd"
     )
     spgd.wait_for("closing the loop")
+    observer.wait_until(
+        lambda: _delays_readers(observer, "ops_spgd") == ["VOLATILE"],
+        timeout=20,
+        what="the running loop's one (best-effort, volatile) reader of /ops/delays",
+    )
     sim.stop()
     spgd.wait_for("re-sending", timeout=20)
-    start_sim(procs, "stage:=3", "mode:=easy", "seed:=9", name="sim_b")
+    assert _delays_readers(observer, "ops_spgd") == ["TRANSIENT_LOCAL", "VOLATILE"]
+    step = ["lockstep:=true"] if lockstep else []
+    start_sim(procs, "stage:=3", "mode:=easy", "seed:=9", *step, name="sim_b")
     spgd.wait_for("now has 3 stages", timeout=30)
     n = observer.count("power")
     observer.wait_until(

@@ -144,7 +144,8 @@ class ControllerLoopNode(Node):
         # is not waited for (a reliable one costs seconds per loss on a lossy link).
         # (each callback takes the message info: its sequence number pairs a step's messages;
         # and the message serialized, read by ops_contract.cdr without building its objects)
-        self._subscribe(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE)
+        self._latched = None  # the latched subscription while it is needed (_keep_latched)
+        self._keep_latched(True)
         self._subscribe(Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_READINGS)
         if self.reads_trace:
             self._subscribe(Float32MultiArray, TOPIC_INTENSITY, self._on_intensity, QOS_READINGS)
@@ -159,9 +160,24 @@ class ControllerLoopNode(Node):
             f"waiting for the simulator on {self.resolve_topic_name(TOPIC_DELAYS)} (rig: {told})"
         )
 
-    def _subscribe(self, msg_type, topic: str, callback, qos) -> None:
+    def _subscribe(self, msg_type, topic: str, callback, qos):
         """``callback(raw, info)`` for each message on ``topic``: its bytes and MessageInfo."""
-        subscribe_with_info(self, msg_type, topic, callback, qos, raw=True)
+        return subscribe_with_info(self, msg_type, topic, callback, qos, raw=True)
+
+    def _keep_latched(self, wanted: bool) -> None:
+        """Hold the latched subscription of ``ops/delays`` or drop it. It is wanted until the
+        loop closes and again while the simulator is silent (a restarted lockstep simulator of
+        another stage publishes its set-points only there). While the loop runs it would only
+        deliver every step's set-points a second time: over DDS that copy cost each process
+        about a fifth of a step's CPU, and SPGD-PID at 1 kHz missed two to four times more of
+        the simulator's steps (``ops-bench loop-rate``, docs/loop_rate.md)."""
+        if wanted and self._latched is None:
+            self._latched = self._subscribe(
+                Float32MultiArray, TOPIC_DELAYS, self._on_delays, QOS_STATE
+            )
+        elif not wanted and self._latched is not None:
+            self.destroy_subscription(self._latched)
+            self._latched = None
 
     def _range_keeper(self) -> RangeKeeper | None:
         """The keeper of the rig file's set-point range (None without one), said on the log."""
@@ -445,6 +461,10 @@ class ControllerLoopNode(Node):
     def _watchdog(self):
         now = time.monotonic()
         self._status.check(now)
+        # (here, not in a callback of the subscription itself)
+        self._keep_latched(
+            self.ctrl is None or now - self._last_reading_at > self._commands.timeout_s
+        )
         if self.ctrl is None:
             waiting = self._delays is not None and self._trace is None and self.reads_trace
             if waiting and now >= self._next_allowed:
