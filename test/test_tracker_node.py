@@ -21,8 +21,15 @@ def start(procs, name, pkg, exe, *params):
     return procs.ros2(*args, name=name)
 
 
-@pytest.mark.parametrize("lockstep", ["false", "true"])
-def test_tracker_locks_a_medium_n5_stacker_within_1000_readings(procs, observer, lockstep):
+@pytest.mark.parametrize(
+    "lockstep, answer_first",
+    [("false", "false"), ("true", "false"), ("false", "true")],
+    ids=["free-running", "lockstep", "answer-first"],
+)
+def test_tracker_locks_a_medium_n5_stacker_within_1000_readings(
+    procs, observer, lockstep, answer_first
+):
+    """``answer_first``: each reading answered by the prediction, its fit after the command."""
     sim = start(
         procs,
         "sim",
@@ -34,7 +41,14 @@ def test_tracker_locks_a_medium_n5_stacker_within_1000_readings(procs, observer,
         f"lockstep:={lockstep}",
     )
     observer.wait_for_subscriber()
-    tracker = start(procs, "tracker", "ops_controller_ros", "tracker", "seed:=3")
+    tracker = start(
+        procs,
+        "tracker",
+        "ops_controller_ros",
+        "tracker",
+        "seed:=3",
+        f"answer_first:={answer_first}",
+    )
     tracker.wait_for("closing the loop", timeout=30)
     # Counted in readings, not seconds: 1000 readings are 10 s of the simulator at 100 Hz on an
     # idle machine; on a loaded one both run slower, and the test asks about the controller.

@@ -48,6 +48,11 @@ fed forward) plus a small known excursion.
   command is out: :meth:`PhaseTracker.think` runs its ``knot_iterations`` (capped in real time by
   ``knot_budget_ms`` in the node) and tells the caller when the
   command it gave should be revised.
+* **Answer first** (``answer_first``, off by default): a reading while tracking is answered by
+  the drift's prediction from the last fit, and its tracking fit runs in
+  :meth:`PhaseTracker.think` once the command is out, acting from the next command. A node's
+  round trip then holds no fit: worth it where a step's drift is small (a fast loop in physical
+  time), a cost where it is not (a 10 Hz loop).
 
 Vibration (a model under ``time_base: seconds`` with a ``vibration`` preset, or the
 ``vibration`` parameter): each of the preset's components keeps cos(2 pi f step_s) of its value

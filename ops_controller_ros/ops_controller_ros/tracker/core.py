@@ -196,6 +196,8 @@ class PhaseTracker:
         if lock.recovering is not None:
             lock.recovering.append(reading)
             self._recover()
+        elif lock.estimate is not None and self.params.answer_first:
+            lock.defer(hop, loop.gap)  # the fit in think(), once the command is out
         elif lock.estimate is not None:
             self._track(hop)
         elif len(self.window) == self.window.length or self.search.job is not None:
@@ -205,14 +207,18 @@ class PhaseTracker:
         self.guard.unlocked_too_long(self.params, self.locked, self.calibration)
 
     def think(self, spread: bool = True) -> bool:
-        """Work that may wait until the command is out: the knot test the last reading asked
-        for (``defer_knot_test``; a node calls this after publishing the command, :meth:`observe`
-        first if nobody did) and the next part of a spread knot test (``slice_knot_test``).
+        """Work that may wait until the command is out: the reading's tracking fit
+        (``answer_first``), the knot test the last reading asked for (``defer_knot_test``; a
+        node calls this after publishing the command, :meth:`observe` first if nobody did) and
+        the next part of a spread knot test (``slice_knot_test``).
         True when that changed the command given: :meth:`command` then gives the revised one (a
         node sends it at once; a step run on the first one is not paired with it). ``spread``
         False: the deferred test only (a spread test moves on after a command, not twice)."""
         lock, knot, p = self.lock, self.knot, self.params
         deadline, rows = None, knots.budget_rows(p, self.rig.work_scale)  # (this reading's)
+        due, hop = lock.take_deferred()
+        if due:  # (answer_first: the command given aims by the prediction, the fit acts next)
+            self._track(hop)
         aimed = (lock.estimate, lock.drift)  # what the command given aims by
         if knot.job is not None:
             job, knot.job = knot.job, None

@@ -379,6 +379,16 @@ class TrackerParams:
         "true: answer a reading first and test it for a knot of the drift after",
         node=True,
     )
+    # Answer every reading first, fit after: the command aims by the drift's prediction from
+    # the last fit and the reading's tracking fit runs once it is out (think()), acting from the
+    # next command. Over DDS the round trip then holds no fit: a loop fast enough that a step's
+    # drift and walk are small (time_base seconds) keeps its rate where the fit would make it
+    # miss steps (docs/loop_rate.md); at the paper's 0.1 s a step the lag costs more.
+    answer_first: bool = _declare(
+        False,
+        "true: answer each reading by the prediction and fit it after the command is out",
+        node=True,
+    )
     recover_readings: int = _declare(4, "readings after a failed fit before a local re-fit", 2)
     acquire_drift: bool = _declare(True, "fit each stage's drift too when a static fit fails")
     # The global search and each candidate of the latency check run whole in the reading that

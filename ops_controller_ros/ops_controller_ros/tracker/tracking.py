@@ -39,6 +39,9 @@ class Lock:
     bad_fits: int = 0  # fits in a row whose readings left the model
     recovering: list | None = None  # readings since then, while re-locking
     lock_tick: int = 0  # the reading an acquisition locked on
+    # a tracking fit put off until the command is out (answer_first): (hop, the estimate the
+    # fit starts from); meanwhile ``estimate`` is the prediction the command aims by
+    deferred: tuple | None = None
 
     def __post_init__(self):
         if self.drift is None:
@@ -66,12 +69,29 @@ class Lock:
         self.drift = np.zeros(self.stage) if drift is None else drift
         self.lock_tick = tick
         self.taken = None
+        self.deferred = None
 
     def lose(self) -> None:
         """No estimate any more (an acquisition follows)."""
         self.estimate = None
         self.recovering = None
         self.taken = None
+        self.deferred = None
+
+    def defer(self, hop, gap: int) -> None:
+        """Put this reading's tracking fit off until the command is out (``answer_first``):
+        the command aims by the prediction ``gap`` steps on, the fit runs in ``think()``."""
+        self.deferred = (hop, self.estimate)
+        self.estimate = self.predicted(gap)
+
+    def take_deferred(self) -> tuple[bool, tuple | None]:
+        """(whether a fit put off is due, its hop), the estimate it starts from restored; a
+        lock dropped or recovering meanwhile has none due."""
+        deferred, self.deferred = self.deferred, None
+        if deferred is None or self.estimate is None or self.recovering is not None:
+            return False, None
+        self.estimate = deferred[1]
+        return True, deferred[0]
 
     def keep_taken(self, steps: np.ndarray) -> None:
         """The last path fit is taken; its readings were at ``steps`` (K,)."""

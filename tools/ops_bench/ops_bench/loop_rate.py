@@ -77,6 +77,7 @@ def commands(args, controller: str, executor: str, rate: float) -> tuple[list[st
         params += [f"vibration:={args.vibration}", f"step_s:={1.0 / rate:g}"]
     if controller == "policy":
         params.append(f"model:={Path(args.model).resolve()}")
+    params += args.param
     for p in params:
         ctl += ["-p", p]
     return sim, ctl
@@ -297,6 +298,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         choices=("none", "lab", "open"),
         default="none",
         help="the simulator's vibration preset (needs --time-base seconds); the tracker is told it",
+    )
+    ap.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME:=VALUE",
+        help="a parameter of the controller node (repeat for more), e.g. answer_first:=true",
     )
     ap.add_argument("--out", help="also write the points to this JSON file")
     ap.add_argument("--no-write", action="store_true", help="print only")
