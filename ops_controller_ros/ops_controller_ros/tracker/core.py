@@ -282,24 +282,15 @@ class PhaseTracker:
         self.window.clear()
 
     def _whole_cycle_move(self):
-        """Whole cycles added to the set-points now: off a line's limit if one is near
-        (:meth:`.period.Period.range_move`), else a hop (stage, cycles) if one is due
-        (:meth:`.period.Period.plan_hop`: only on a clean lock, not right after a knot of the
-        drift, not on a low reading); the hop, or None."""
+        """Whole cycles added to the set-points now (:meth:`.period.Period.move`): off a
+        line's limit, or a hop on a clean lock (no bad fit, no knot test and no knot within a
+        window, a good reading); the hop, or None."""
         lock, loop, knot = self.lock, self.loop, self.knot
-        move = self.period.range_move(self.rig, loop.base)
-        hop = None
-        if move is None:
-            since_knot = loop.tick - knot.tick
-            clean = not lock.bad_fits and not knot.testing and since_knot >= self.window.length
-            clean = clean and loop.last_power >= HOP_POWER
-            noisy = self.rig.told_noisy or self.rig.weights is not None
-            move = hop = self.period.plan_hop(
-                self.params, noisy, clean, lock.drift, loop.base, loop.tick
-            )
-        if move is not None:
-            loop.base[move[0]] += move[1]
-        return hop
+        clean = not lock.bad_fits and not knot.testing and loop.last_power >= HOP_POWER
+        clean = clean and loop.tick - knot.tick >= self.window.length
+        noisy = self.rig.told_noisy or self.rig.weights is not None
+        args = (self.params, self.rig, loop.base, loop.tick, noisy, clean, lock.drift)
+        return self.period.move(*args)
 
     def _adopt_optics(self) -> None:
         """Take the calibration's wavelength and width into the model and re-express the state

@@ -89,6 +89,18 @@ class Period:
         self.range_moves += 1
         return j, int(periods[j])
 
+    def move(self, p: TrackerParams, rig, base, tick: int, noisy: bool, clean: bool, drift):
+        """Whole cycles added to the set-points ``base`` (cycles, in place) now: off a line's
+        limit if one is near (:meth:`range_move`), else a hop if one is due (:meth:`plan_hop`);
+        the hop (stage, cycles), or None."""
+        move = self.range_move(rig, base)
+        hop = None
+        if move is None:
+            move = hop = self.plan_hop(p, noisy, clean, drift, base, tick)
+        if move is not None:
+            base[move[0]] += move[1]
+        return hop
+
     def correct(self, p: TrackerParams, calibration, r: float) -> None:
         """A window fit with a hop found the model's period off by r (model over true, minus 1):
         move the calibration's wavelength by a share of ``hop_gain`` of it that falls with the
