@@ -236,13 +236,22 @@ def uptime() -> str:
     return done.stdout.strip() or f"load average {os.getloadavg()}"
 
 
+def section_title(args) -> str:
+    """The benchmarks.md section of these settings: the default's, or one per time base,
+    vibration and controller parameters (a run of other settings keeps the default's table)."""
+    told = [f"time_base {args.time_base}"] if args.time_base != "step" else []
+    told += [f"vibration {args.vibration}"] if args.vibration != "none" else []
+    told += args.param
+    return SECTION + (f": {', '.join(told)}" if told else "")
+
+
 def section(args, points: list[dict], load_start: str, load_end: str) -> list[str]:
     niceness = os.nice(0)  # the priority it ran at, as the user typed it
     cmd = (f"nice -n {niceness} " if niceness else "") + "ops-bench loop-rate "
     cmd += " ".join(sys.argv[1:])
     modes = ", ".join(f"{c} {args.mode or MODES[c]}" for c in args.controllers)
     lines = [
-        SECTION,
+        section_title(args),
         "",
         f"Command: `{cmd.strip()}`. Simulator N = {args.stage} free-running ({modes}; "
         f"split {args.split}, seed {args.seed}) and the controller as processes, fresh for each "
@@ -331,7 +340,9 @@ def main(argv=None) -> int:
     finally:
         rclpy.try_shutdown()
     load_end = uptime()
-    publish(SECTION, section(args, points, load_start, load_end), write=not args.no_write)
+    publish(
+        section_title(args), section(args, points, load_start, load_end), write=not args.no_write
+    )
     out = Path(args.out) if args.out else logdir / "results.json"
     out.write_text(json.dumps({"args": vars(args), "points": points}, indent=2) + "\n")
     print(f"wrote {out}")

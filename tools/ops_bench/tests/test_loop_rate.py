@@ -1,13 +1,15 @@
-"""The CPU that ``ops-bench loop-rate`` books per simulator step: each node's session, the child
-that ``ros2 run`` starts in a process group of its own included."""
+"""``ops-bench loop-rate``: the CPU it books per simulator step (each node's session, the child
+that ``ros2 run`` starts in a process group of its own included) and the settings it passes."""
 
 from __future__ import annotations
 
 import sys
 import time
 
+import pytest
+
 from ops_bench.closed_loop import group_cpu_s, start, stop
-from ops_bench.loop_rate import format_row
+from ops_bench.loop_rate import SECTION, commands, format_row, parse_args, section_title
 
 # The parent waits; its child, in a process group of its own (as ``ros2 run`` starts a node),
 # is busy: only the child's CPU can show.
@@ -47,3 +49,22 @@ def test_the_table_row_shows_the_cpu_per_step():
     assert format_row(point) == "| spgd | events | 500 | 495 | 3.6 % | 100.0 % | 700 | 616 | no |"
     del point["sim_cpu_us_per_step"]  # (a result file written before the column was added)
     assert "| — | 616 |" in format_row(point)
+
+
+def test_physical_time_and_controller_parameters_reach_the_nodes_and_their_own_section():
+    args = parse_args(["--controllers", "tracker", "--time-base", "seconds", "--vibration",
+                       "lab", "--param", "answer_first:=true"])  # fmt: skip
+    sim, ctl = commands(args, "tracker", "events", 500.0)
+    assert {"time_base:=seconds", "vibration:=lab", "rate_hz:=500"} <= set(sim)
+    # the tracker told the vibration at the loop's period, and the parameter given
+    assert {"vibration:=lab", "step_s:=0.002", "answer_first:=true"} <= set(ctl)
+    title = section_title(args)
+    assert title == f"{SECTION}: time_base seconds, vibration lab, answer_first:=true"
+    assert section_title(parse_args(["--controllers", "spgd"])) == SECTION  # the default's
+
+
+def test_a_vibration_in_steps_is_refused(capsys):
+    with pytest.raises(SystemExit) as stop_:
+        parse_args(["--controllers", "spgd", "--vibration", "lab"])
+    assert stop_.value.code == 2
+    assert "--time-base seconds" in capsys.readouterr().err
