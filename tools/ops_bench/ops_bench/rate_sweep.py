@@ -62,9 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help="tracker, tracker-answer-first (answer_first: a reading answered by the "
         "prediction, fitted after), spgd, model directories, or oracle: the floor of any "
-        "controller at "
-        "each rate and latency (it reads the true delay errors: ops_experiments.timed_loop."
-        "TrueErrorReference) (default: %(default)s)",
+        "controller at each rate and latency (it reads the true delay errors: "
+        "ops_experiments.timed_loop.TrueErrorReference) (default: %(default)s)",
     )
     p.add_argument(
         "--rates",
