@@ -233,9 +233,8 @@ class CappedLoop:
         think = getattr(self.ctl, "think", None)
         revised = think is not None and think()
         t2 = time.thread_time()
-        answer_s = (start - self.step) * self.step_s + self._spent_ms(
-            (t1 - t0) * 1e3, "answer"
-        ) / 1e3
+        waited_s = (start - self.step) * self.step_s  # (still at the last reading's work)
+        answer_s = waited_s + self._spent_ms((t1 - t0) * 1e3, "answer") / 1e3
         done_s = answer_s + self._spent_ms((t2 - t1) * 1e3, "think") / 1e3
         k = steps_for(answer_s, self.step_s)
         self.compute.add((t2 - t0) * 1e3, k, first)

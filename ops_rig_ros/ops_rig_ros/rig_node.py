@@ -126,8 +126,9 @@ class RigNode(Node):
         return problem
 
     def _volts_of(self, values: np.ndarray):
-        """The drive voltages of a command the inbox passed (computed again only for one it
-        passed before the last: it keeps its verdicts, so it does not check a repeat again)."""
+        """The drive voltages of a command the inbox passed: kept by its check, which the inbox
+        runs on every valid command it takes, in order, before it returns the newest of them
+        (computed again should another command be given)."""
         if self._passed is not None and self._passed[0] == values.tobytes():
             return self._passed[1]
         return command_volts(values.tolist(), self.stage, self.cal, self.limits)[0]
