@@ -53,6 +53,10 @@ fed forward) plus a small known excursion.
   :meth:`PhaseTracker.think` once the command is out, acting from the next command. A node's
   round trip then holds no fit: worth it where a step's drift is small (a fast loop in physical
   time), a cost where it is not (a 10 Hz loop).
+* **One fit in so many** (``fit_every``, 1 by default): while tracking, the readings between
+  two fits are answered by the drift's prediction and join the next fit's window (a reading
+  with a whole-cycle move is always fitted): a node whose fit takes most of a fast loop's
+  period spends a fraction of the CPU per reading.
 
 Vibration (a model under ``time_base: seconds`` with a ``vibration`` preset, or the
 ``vibration`` parameter): each of the preset's components keeps cos(2 pi f step_s) of its value

@@ -196,6 +196,8 @@ class PhaseTracker:
         if lock.recovering is not None:
             lock.recovering.append(reading)
             self._recover()
+        elif lock.estimate is not None and lock.skips_fit(self.params.fit_every, hop):
+            lock.estimate = lock.predicted(loop.gap)  # (fit_every: the next fit takes it)
         elif lock.estimate is not None and self.params.answer_first:
             lock.defer(hop, loop.gap)  # the fit in think(), once the command is out
         elif lock.estimate is not None:

@@ -389,6 +389,18 @@ class TrackerParams:
         "true: answer each reading by the prediction and fit it after the command is out",
         node=True,
     )
+    # Fit one reading in fit_every while tracking: the others are answered by the drift's
+    # prediction and join the next fit's window (a whole-cycle move's reading is always fitted).
+    # A node whose fit takes most of a fast loop's period (500 Hz over DDS on two cores) thus
+    # keeps its rate; the window still holds every reading (docs/loop_rate.md).
+    fit_every: int = _declare(
+        1,
+        "while tracking, fit one reading in this many; the others are answered by the "
+        "prediction and join the next fit's window",
+        1,
+        100,
+        node=True,
+    )
     recover_readings: int = _declare(4, "readings after a failed fit before a local re-fit", 2)
     acquire_drift: bool = _declare(True, "fit each stage's drift too when a static fit fails")
     # The global search and each candidate of the latency check run whole in the reading that

@@ -42,6 +42,7 @@ class Lock:
     # a tracking fit put off until the command is out (answer_first): (hop, the estimate the
     # fit starts from); meanwhile ``estimate`` is the prediction the command aims by
     deferred: tuple | None = None
+    unfitted: int = 0  # readings since the last tracking fit answered by the prediction alone
 
     def __post_init__(self):
         if self.drift is None:
@@ -70,6 +71,7 @@ class Lock:
         self.lock_tick = tick
         self.taken = None
         self.deferred = None
+        self.unfitted = 0
 
     def lose(self) -> None:
         """No estimate any more (an acquisition follows)."""
@@ -77,6 +79,16 @@ class Lock:
         self.recovering = None
         self.taken = None
         self.deferred = None
+        self.unfitted = 0
+
+    def skips_fit(self, fit_every: int, hop) -> bool:
+        """Whether this reading is answered by the prediction alone (``fit_every``): not one
+        with a whole-cycle move, which measures the period."""
+        if hop is not None or self.unfitted + 1 >= fit_every:
+            self.unfitted = 0
+            return False
+        self.unfitted += 1
+        return True
 
     def defer(self, hop, gap: int) -> None:
         """Put this reading's tracking fit off until the command is out (``answer_first``):

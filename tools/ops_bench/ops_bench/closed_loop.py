@@ -152,6 +152,20 @@ def group_cpu_s(sid: int) -> float:
     return total / tick
 
 
+def machine_times() -> tuple[int, int]:
+    """(steal, all) of the machine's CPU time so far, in ticks (/proc/stat's first line): the
+    share of steal over a window is the time a virtual machine's cores waited for the host,
+    which a loop of a few ms feels as late wake-ups whatever its own load."""
+    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    ticks = [int(f) for f in fields[:8]]  # user nice system idle iowait irq softirq steal
+    return (ticks[7] if len(ticks) > 7 else 0), sum(ticks)
+
+
+def steal_share(before: tuple[int, int], after: tuple[int, int]) -> float:
+    """The share of the machine's CPU time stolen by its host between two machine_times()."""
+    return (after[0] - before[0]) / max(after[1] - before[1], 1)
+
+
 def stop(proc):
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGINT)

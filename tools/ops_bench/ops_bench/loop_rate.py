@@ -12,7 +12,10 @@ increasing ``rate_hz``, each rate with a fresh simulator and controller as real 
 - locked: the share of the readings >= 0.95 after the first one >= 0.95
   (ops_experiments.continuous.lock_figures);
 - CPU per step: each process group's CPU time over the window (/proc, the DDS threads too)
-  per simulator step: what bounds the rate on a machine of few cores.
+  per simulator step: what bounds the rate on a machine of few cores;
+- steal: the share of the machine's CPU time its host took over the window (/proc/stat). On a
+  virtual machine that shares its cores, a loop of a few ms then wakes late whatever its own
+  load (docs/loop_rate.md, "Over DDS").
 
 A rate is held when readings/s reach 90 % of it (the simulator's own warning threshold), at most
 1 % of the steps missed their command, and, for the tracker and the policy, at least 99 % of
@@ -42,7 +45,16 @@ from pathlib import Path
 
 from ops_contract.config import TIME_BASES, VIBRATIONS
 
-from ops_bench.closed_loop import REPO, group_cpu_s, local_dds, power_node, start, stop_all
+from ops_bench.closed_loop import (
+    REPO,
+    group_cpu_s,
+    local_dds,
+    machine_times,
+    power_node,
+    start,
+    steal_share,
+    stop_all,
+)
 from ops_bench.docs import publish
 
 SECTION = "## Loop rate over DDS, by executor"
@@ -150,10 +162,12 @@ def measure_point(args, controller: str, executor: str, rate: float, logdir: Pat
             power.clear()
             first_diag = len(listener.diagnostics)
             cpu0 = [group_cpu_s(proc.pid) for proc in procs]
+            machine0 = machine_times()
             t0 = time.monotonic()
             listener.spin_until(lambda: False, args.seconds)
             elapsed = time.monotonic() - t0
             cpu = [group_cpu_s(proc.pid) - c for proc, c in zip(procs, cpu0, strict=True)]
+            steal = steal_share(machine0, machine_times())
             readings = list(power)
             diag = listener.diagnostics[first_diag:]
         finally:
@@ -175,6 +189,7 @@ def measure_point(args, controller: str, executor: str, rate: float, logdir: Pat
         # CPU a simulator step cost each process (its DDS threads too), microseconds
         "sim_cpu_us_per_step": 1e6 * cpu[0] / max(step_b - step_a, 1) * (tb - ta) / elapsed,
         "controller_cpu_us_per_step": 1e6 * cpu[1] / max(step_b - step_a, 1) * (tb - ta) / elapsed,
+        "steal": steal,  # the host's share of this VM's CPU time over the window
     }
 
 
@@ -205,10 +220,11 @@ def sweep(args, logdir: Path) -> list[dict]:
 def format_row(p: dict) -> str:
     cpu = [p.get(k) for k in ("sim_cpu_us_per_step", "controller_cpu_us_per_step")]
     cpu_cells = " | ".join("—" if c is None else f"{c:.0f}" for c in cpu)
+    steal = "—" if p.get("steal") is None else f"{100 * p['steal']:.1f} %"
     return (
         f"| {p['controller']} | {p['executor']} | {p['rate_hz']:g} | "
         f"{p['readings_per_s']:.0f} | {100 * p['missed']:.1f} % | {100 * p['locked']:.1f} % | "
-        f"{cpu_cells} | {'yes' if p['held'] else 'no'} |"
+        f"{cpu_cells} | {steal} | {'yes' if p['held'] else 'no'} |"
     )
 
 
@@ -261,7 +277,8 @@ def section(args, points: list[dict], load_start: str, load_end: str) -> list[st
         "closes the loop. Readings/s: ops/power received by a subscriber; missed: the "
         "simulator's steps that took no new command (its diagnostics' steps_without_command); "
         "locked: readings >= 0.95 after the first one; CPU per step: the CPU time of each "
-        "process group over the window (its DDS threads included) per simulator step. Held: "
+        "process group over the window (its DDS threads included) per simulator step; steal: the "
+        "host's share of this VM's CPU time over the window (/proc/stat). Held: "
         "readings/s >= 90 % of rate_hz, missed <= 1 %, and (tracker, policy) locked >= 99 %.",
         "",
         f"Machine: {os.cpu_count()} cores, shared with other work (a loop waits for a core "
@@ -277,8 +294,8 @@ def section(args, points: list[dict], load_start: str, load_end: str) -> list[st
     lines += [
         "",
         "| controller | executor | rate_hz | readings/s | missed | locked | simulator CPU per "
-        "step, µs | controller CPU per step, µs | held |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "step, µs | controller CPU per step, µs | steal | held |",
+        "|---|---|---|---|---|---|---|---|---|---|",
         *(format_row(p) for p in points),
         "",
     ]

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from ops_bench.closed_loop import group_cpu_s, start, stop
+from ops_bench.closed_loop import group_cpu_s, machine_times, start, steal_share, stop
 from ops_bench.loop_rate import SECTION, commands, format_row, parse_args, section_title
 
 # The parent waits; its child, in a process group of its own (as ``ros2 run`` starts a node),
@@ -42,11 +42,25 @@ def test_a_gone_session_books_nothing():
     assert group_cpu_s(2**22 + 12345) == 0.0
 
 
+def test_the_steal_share_is_read_from_this_machine_and_is_a_share():
+    before = machine_times()
+    sum(i * i for i in range(200_000))  # (some CPU time passes)
+    after = machine_times()
+    assert after[1] > before[1] and after[0] >= before[0]
+    assert 0.0 <= steal_share(before, after) <= 1.0
+    assert steal_share((5, 100), (15, 300)) == 0.05
+    assert steal_share((5, 100), (5, 100)) == 0.0  # (no time passed: no division by zero)
+
+
 def test_the_table_row_shows_the_cpu_per_step():
     point = {"controller": "spgd", "executor": "events", "rate_hz": 500.0}
     point |= {"readings_per_s": 495.0, "missed": 0.036, "locked": 1.0, "held": False}
     point |= {"sim_cpu_us_per_step": 700.4, "controller_cpu_us_per_step": 616.2}
-    assert format_row(point) == "| spgd | events | 500 | 495 | 3.6 % | 100.0 % | 700 | 616 | no |"
+    row = "| spgd | events | 500 | 495 | 3.6 % | 100.0 % | 700 | 616 | — | no |"
+    assert format_row(point) == row
+    point["steal"] = 0.052
+    assert "| 700 | 616 | 5.2 % | no |" in format_row(point)
+    del point["steal"]
     del point["sim_cpu_us_per_step"]  # (a result file written before the column was added)
     assert "| — | 616 |" in format_row(point)
 
