@@ -50,10 +50,12 @@ from .continuous import LOCK, LOSS
 
 #: The controllers by name, each (the controller, its parameters): ``tracker-answer-first``
 #: is the tracker that answers each reading by its prediction and fits after (``answer_first``,
-#: for a fast loop: docs/loop_rate.md).
+#: for a fast loop: docs/loop_rate.md); ``tracker-fit-every-4`` also fits one reading in four
+#: (``fit_every``, for a node short of CPU).
 CONTROLLERS = {
     "tracker": ("tracker", {}),
     "tracker-answer-first": ("tracker", {"answer_first": True}),
+    "tracker-fit-every-4": ("tracker", {"answer_first": True, "fit_every": 4}),
     "spgd": ("spgd", {}),
 }
 CONTROLLER_NAMES = tuple(CONTROLLERS)

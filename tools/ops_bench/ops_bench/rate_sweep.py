@@ -61,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=list(CONTROLLERS),
         metavar="NAME",
         help="tracker, tracker-answer-first (answer_first: a reading answered by the "
-        "prediction, fitted after), spgd, model directories, or oracle: the floor of any "
+        "prediction, fitted after), tracker-fit-every-4 (and one reading in four fitted), "
+        "spgd, model directories, or oracle: the floor of any "
         "controller at each rate and latency (it reads the true delay errors: "
         "ops_experiments.timed_loop.TrueErrorReference) (default: %(default)s)",
     )
