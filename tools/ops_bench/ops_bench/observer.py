@@ -8,6 +8,9 @@ import time
 
 from ops_bench.processes import log_tails
 
+#: Commands the observer's writer keeps until the simulator has them (a 3 s flood at 3,000/s).
+COMMANDS_KEPT = 10000
+
 
 class TopicObserver:
     """An rclpy node in the test process: records the simulator's outputs, sends commands.
@@ -39,7 +42,11 @@ class TopicObserver:
             ("reward", Float32),
         ):
             self.node.create_subscription(mtype, f"ops/{name}", self._recorder(name), qos)
-        self.cmd_pub = self.node.create_publisher(Float32MultiArray, "ops/delay_cmd", qos)
+        # A reliable KEEP_LAST writer drops its oldest samples that no reader has acknowledged
+        # once its history is full: a flood of commands (a test's thousands a second) to a
+        # simulator that a loaded machine keeps from acknowledging is kept whole up to here.
+        cmd_qos = QoSProfile(depth=COMMANDS_KEPT, reliability=ReliabilityPolicy.RELIABLE)
+        self.cmd_pub = self.node.create_publisher(Float32MultiArray, "ops/delay_cmd", cmd_qos)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
