@@ -210,6 +210,33 @@ class TrackerParams:
         0.0,
         low_open=True,
     )
+    # A window's drift is mostly the walk and the vibration read as drift: under a told
+    # vibration, once the lock has tracked for a sixth of vibration_memory_s, the drift prior's
+    # mean is the slope of the estimates taken over the last vibration_memory_s (its std
+    # vibration_memory_prior_cycles), released when the last window's estimates leave that
+    # slope by vibration_turn_cycles, one stage's or all stages' reversing at once
+    # (.tracking.DriftMemory; docs/tracker.md).
+    vibration_memory_s: float = _declare(
+        0.0,
+        "under a told vibration, seconds of estimates whose slope is the drift prior's mean "
+        "(0: off)",
+        0.0,
+        3600.0,
+    )
+    vibration_memory_prior_cycles: float = _declare(
+        2e-5,
+        "under a told vibration, the drift prior's std about the remembered slope, cycles per "
+        "0.1 s",
+        0.0,
+        low_open=True,
+    )
+    vibration_turn_cycles: float = _declare(
+        0.03,
+        "under a told vibration, how far a window's estimates may leave the remembered slope "
+        "before the drift is taken as turned, cycles",
+        0.0,
+        low_open=True,
+    )
     drift_prior_cycles: float = _declare(
         0.004, "how far one window may move the drift estimate (std)", 0.0, low_open=True
     )

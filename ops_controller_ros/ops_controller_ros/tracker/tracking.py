@@ -42,6 +42,8 @@ class Lock:
     # a tracking fit put off until the command is out (answer_first): (hop, the estimate the
     # fit starts from); meanwhile ``estimate`` is the prediction the command aims by
     deferred: tuple | None = None
+    # under a told vibration, the slope of the estimates taken (None: not remembered)
+    memory: DriftMemory | None = None
 
     def __post_init__(self):
         if self.drift is None:
@@ -70,6 +72,7 @@ class Lock:
         self.lock_tick = tick
         self.taken = None
         self.deferred = None
+        self.forget()
 
     def lose(self) -> None:
         """No estimate any more (an acquisition follows)."""
@@ -77,6 +80,26 @@ class Lock:
         self.recovering = None
         self.taken = None
         self.deferred = None
+        self.forget()
+
+    def forget(self) -> None:
+        """The estimates taken so far no longer tell the drift (a new lock, new cycles)."""
+        if self.memory is not None:
+            self.memory.reset()
+
+    def remember(self, drift: np.ndarray, step: int) -> np.ndarray:
+        """The drift to carry on with after a fit taken at ``step`` (the estimate set), whose
+        own drift is ``drift``: the remembered slope where there is one (:class:`DriftMemory`)."""
+        if self.memory is None:
+            return drift
+        return self.memory.take(step, self.estimate, drift)
+
+    def remembered(self) -> DriftMemory | None:
+        """The drift memory, where it gives the drift prior now (not while recovering)."""
+        memory = self.memory
+        if memory is None or memory.slope is None or self.recovering is not None:
+            return None
+        return memory
 
     def defer(self, hop, gap: int) -> None:
         """Put this reading's tracking fit off until the command is out (``answer_first``):
@@ -117,6 +140,7 @@ class Lock:
         self.estimate = self.estimate + latest_u - latest_u * ratio  # same phase
         self.drift = self.drift * ratio
         self.taken = None
+        self.forget()
 
 
 class Guard:
@@ -176,11 +200,16 @@ def detector_settled(p: TrackerParams, calibration) -> bool:
     return not p.calibrate or (calibration.detector_fitted and not calibration.detector_provisional)
 
 
-def drift_prior(p: TrackerParams, noisy: bool, since_knot: int, knot_cut_short: bool) -> float:
+def drift_prior(
+    p: TrackerParams, noisy: bool, since_knot: int, knot_cut_short: bool, memory=None
+) -> float:
     """How far one window may move the drift estimate (std, cycles per step): looser on a clean
     detector, stiff on a noisy one; there looser again within ``quiet_after`` readings of a knot
     taken, and stiffer still while no knot was taken for as long and the knot tests run to their
-    end (a quiet drift is only known where a knot would have been seen)."""
+    end (a quiet drift is only known where a knot would have been seen). A drift ``memory``
+    (:meth:`Lock.remembered`) gives its own."""
+    if memory is not None:
+        return memory.prior
     if not noisy:
         return p.drift_prior_cycles
     if since_knot < p.quiet_after and p.knotted_drift_prior_cycles:
@@ -219,3 +248,82 @@ def largest_gap(age: np.ndarray) -> float:
     """The most steps between two consecutive readings of a window."""
     ages = age.tolist()
     return max([0.0, *(a - b for a, b in itertools.pairwise(ages))])
+
+
+#: Steps between two fits taken beyond which the estimates before are forgotten (a re-lock, an
+#: outage: the estimate may have moved by more than the drift).
+MEMORY_MAX_GAP = 5
+
+
+class DriftMemory:
+    """The drift as the slope of the estimates taken over a long span (``span`` steps), the
+    drift prior's mean under a told vibration.
+
+    One window's fit moves its drift by what its few readings say, and under a vibration they
+    say mostly the walk and the vibration's slow part: the drift estimate wanders by tens of
+    percent within seconds, and the estimate follows it off. The estimates taken over a minute
+    tell the drift to a few percent (the walk's sigma over the root of the steps). Once ``least``
+    steps are held, the slope is fitted (least squares) and given as the drift to carry on with;
+    the fits take it as their prior's mean with std ``prior``. Released (forgotten, the fits'
+    own drift again) when the last ``window`` steps' estimates leave the slope by ``turn``
+    cycles: one stage by that much, or all stages together along the reversal of the drift (a
+    drift that turns everywhere at once: a common thermal cause)."""
+
+    def __init__(self, span: int, least: int, window: int, prior: float, turn: float) -> None:
+        self.span, self.least, self.window = int(span), int(least), int(window)
+        self.prior, self.turn = float(prior), float(turn)
+        self.turns = 0  # releases for a turn of the drift
+        self.reset()
+
+    def reset(self) -> None:
+        self.steps: deque = deque()
+        self.xs: deque = deque()
+        self.slope: np.ndarray | None = None
+
+    def take(self, step: int, x: np.ndarray, drift: np.ndarray) -> np.ndarray:
+        """Hold the estimate ``x`` taken at ``step``; the drift to carry on with (the slope,
+        or the fit's own ``drift`` while there is none or it was just released)."""
+        steps, xs = self.steps, self.xs
+        if steps and step - steps[-1] > MEMORY_MAX_GAP:
+            self.reset()
+            steps, xs = self.steps, self.xs
+        steps.append(step)
+        xs.append(np.array(x, dtype=np.float64))
+        while step - steps[0] > self.span:
+            steps.popleft()
+            xs.popleft()
+        if step - steps[0] < self.least:
+            self.slope = None
+            return drift
+        t = np.array(steps, dtype=np.float64)
+        big_x = np.array(xs)
+        tc = t - t.mean()
+        slope = tc @ (big_x - big_x.mean(axis=0)) / float(tc @ tc)
+        if self._turned(t, big_x, slope):
+            self.turns += 1
+            self.reset()
+            return drift
+        self.slope = slope
+        return slope
+
+    def _turned(self, t: np.ndarray, big_x: np.ndarray, slope: np.ndarray) -> bool:
+        """Whether the last ``window`` steps' estimates left the line of ``slope``: one stage
+        by ``turn`` cycles, or all along the drift's reversal (-slope) by as much."""
+        k = min(self.window, t.size) - 1
+        off = big_x[-1] - big_x[-1 - k] - (t[-1] - t[-1 - k]) * slope
+        if float(np.max(np.abs(off))) > self.turn:
+            return True
+        size = float(np.linalg.norm(slope))
+        return size > 0.0 and -float(off @ slope) / size > self.turn
+
+
+def drift_memory(p: TrackerParams, config, vibration) -> DriftMemory | None:
+    """The lock's :class:`DriftMemory` under a told ``vibration`` with ``vibration_memory_s``
+    set (its times in the loop's steps of ``config.step_s``); None otherwise."""
+    if vibration is None or p.vibration_memory_s <= 0.0:
+        return None
+    step_s = float(getattr(config, "step_s", 0.1))
+    scale = float(getattr(config, "time_scale", 1.0))
+    span = max(round(p.vibration_memory_s / step_s), 2 * p.window)
+    prior = p.vibration_memory_prior_cycles * scale
+    return DriftMemory(span, max(span // 6, p.window), p.window, prior, p.vibration_turn_cycles)
