@@ -217,7 +217,7 @@ class TrackerParams:
     # slope by vibration_turn_cycles, one stage's or all stages' reversing at once
     # (.tracking.DriftMemory; docs/tracker.md).
     vibration_memory_s: float = _declare(
-        0.0,
+        120.0,
         "under a told vibration, seconds of estimates whose slope is the drift prior's mean "
         "(0: off)",
         0.0,
@@ -231,7 +231,7 @@ class TrackerParams:
         low_open=True,
     )
     vibration_turn_cycles: float = _declare(
-        0.03,
+        0.05,
         "under a told vibration, how far a window's estimates may leave the remembered slope "
         "before the drift is taken as turned, cycles",
         0.0,

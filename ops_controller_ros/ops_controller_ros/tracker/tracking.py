@@ -267,7 +267,8 @@ class DriftMemory:
     the fits take it as their prior's mean with std ``prior``. Released (forgotten, the fits'
     own drift again) when the last ``window`` steps' estimates leave the slope by ``turn``
     cycles: one stage by that much, or all stages together along the reversal of the drift (a
-    drift that turns everywhere at once: a common thermal cause)."""
+    drift that turns everywhere at once: a common thermal cause); the drift carried on is then
+    the slope of that window's estimates, and the memory fills again from there."""
 
     def __init__(self, span: int, least: int, window: int, prior: float, turn: float) -> None:
         self.span, self.least, self.window = int(span), int(least), int(window)
@@ -297,12 +298,13 @@ class DriftMemory:
             return drift
         t = np.array(steps, dtype=np.float64)
         big_x = np.array(xs)
-        tc = t - t.mean()
-        slope = tc @ (big_x - big_x.mean(axis=0)) / float(tc @ tc)
+        slope = _slope(t, big_x)
         if self._turned(t, big_x, slope):
+            # the drift turned: the fits' own drift again, from the last window's slope
             self.turns += 1
             self.reset()
-            return drift
+            k = min(self.window, t.size)
+            return _slope(t[-k:], big_x[-k:])
         self.slope = slope
         return slope
 
@@ -315,6 +317,12 @@ class DriftMemory:
             return True
         size = float(np.linalg.norm(slope))
         return size > 0.0 and -float(off @ slope) / size > self.turn
+
+
+def _slope(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The least-squares slope (N,) of estimates ``x`` (K, N) taken at steps ``t`` (K,)."""
+    tc = t - t.mean()
+    return tc @ (x - x.mean(axis=0)) / float(tc @ tc)
 
 
 def drift_memory(p: TrackerParams, config, vibration) -> DriftMemory | None:
