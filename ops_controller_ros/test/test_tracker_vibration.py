@@ -100,3 +100,79 @@ def test_the_tracker_holds_the_lab_vibration_at_10_hz(seed):
     assert held >= 0.9, held
     assert mrad <= 110.0, mrad
     assert longest <= 5, longest  # no lock lost
+
+
+def _memory(span=1200, least=200, window=20, prior=2e-5, turn=0.05):
+    from ops_controller_ros.tracker.tracking import DriftMemory
+
+    return DriftMemory(span, least, window, prior, turn)
+
+
+def _line(rng, steps, drift, walk=0.001, noise=0.006):
+    """Estimates of a drift with a random walk, each off by ``noise`` (K, N)."""
+    path = np.cumsum(drift + walk * rng.standard_normal((steps, drift.size)), axis=0)
+    return path + noise * rng.standard_normal(path.shape)
+
+
+def test_the_drift_memory_remembers_the_slope_of_a_long_span():
+    rng = np.random.default_rng(3)
+    drift = np.array([0.001, -0.0008, 0.0012, 0.0005, -0.001])
+    memory, window_error = _memory(), []
+    xs = _line(rng, 1200, drift)
+    for step, x in enumerate(xs):
+        carried = memory.take(step, x, drift + 5e-4)  # a window's own drift, well off
+        if step < 200:
+            assert memory.slope is None and np.array_equal(carried, drift + 5e-4)
+        else:
+            window_error.append(np.abs(carried - drift).max())
+    # a walk of 0.001 a step over a minute and more: the slope to a few 1e-5 (not the 5e-4 of
+    # the window's), and no turn taken where there was none
+    assert memory.turns == 0
+    assert max(window_error[-200:]) < 1.5e-4, max(window_error[-200:])
+    assert memory.slope is not None
+
+
+@pytest.mark.parametrize(("stages", "speed"), [((0, 1, 2, 3, 4), 0.001), ((2,), 0.003)])
+def test_the_drift_memory_lets_go_at_a_turn(stages, speed):
+    # all stages reversing a drift of 0.001 cycles a step (hard mode's), or one stage a faster
+    # one (one stage's turn of the slowest drifts stays within the window's noise: not taken)
+    rng = np.random.default_rng(4)
+    drift = np.full(5, speed)
+    memory = _memory()
+    xs = _line(rng, 600, drift)
+    for step, x in enumerate(xs):
+        memory.take(step, x, drift)
+    assert memory.slope is not None and memory.turns == 0
+    turned = drift.copy()
+    turned[list(stages)] *= -1.0  # the drift reverses: all stages at once, or one
+    x, carried = xs[-1], None
+    for step in range(600, 640):
+        x = x + turned + 0.001 * rng.standard_normal(5)
+        carried = memory.take(step, x, drift)
+        if memory.turns:
+            break
+    # let go within a window and a half, and on from the last window's slope: the turned
+    # stages' drift carried on well below the remembered one, toward the new
+    assert memory.turns == 1 and memory.slope is None, step
+    assert step - 600 <= 30
+    assert np.mean(carried[list(stages)]) < 0.5 * speed, carried
+
+
+def test_the_drift_memory_is_there_only_under_a_told_vibration():
+    from ops_controller_ros.tracker.tracking import drift_prior
+
+    assert PhaseTracker(make_config(5, "hard", "test"), seed=1).lock.memory is None
+    assert PhaseTracker(_timed(10, "none"), seed=1).lock.memory is None
+    off = TrackerParams(vibration_memory_s=0.0)
+    assert PhaseTracker(_timed(10), off, seed=1).lock.memory is None
+    tracker = PhaseTracker(_timed(10), seed=1)
+    memory = tracker.lock.memory
+    assert memory is not None and memory.span == 1200  # 120 s at 10 Hz
+    # a drift prior of its own only once it holds a slope, and not while recovering
+    assert tracker.lock.remembered() is None
+    memory.slope = np.zeros(5)
+    assert tracker.lock.remembered() is memory
+    p = tracker.params
+    assert drift_prior(p, True, 0, False, memory) == memory.prior < p.noisy_drift_prior_cycles
+    tracker.lock.recovering = []
+    assert tracker.lock.remembered() is None
