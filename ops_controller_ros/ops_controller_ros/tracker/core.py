@@ -486,7 +486,7 @@ class PhaseTracker:
         # the model's pulse envelopes are evaluated where the pulses are (wrapped, the set-points
         # would carry the drift's whole cycles, and the residuals grow over a long run).
         lock.estimate = x
-        lock.drift = bounded(p, lock.remember(lock.drift, self.loop.step, self.knot.tick))
+        lock.drift = bounded(p, lock.remember(lock.drift, self.loop.step))
         lock.keep_taken(self.loop.step - age.astype(np.int64))
         if p.calibrate:
             self._calibrate(u, lock.path)

@@ -87,13 +87,12 @@ class Lock:
         if self.memory is not None:
             self.memory.reset()
 
-    def remember(self, drift: np.ndarray, step: int, knot_tick: int) -> np.ndarray:
+    def remember(self, drift: np.ndarray, step: int) -> np.ndarray:
         """The drift to carry on with after a fit taken at ``step`` (the estimate set), whose
-        own drift is ``drift``: the remembered slope where there is one (:class:`DriftMemory`);
-        ``knot_tick``: the reading the last knot was taken at."""
+        own drift is ``drift``: the remembered slope where there is one (:class:`DriftMemory`)."""
         if self.memory is None:
             return drift
-        return self.memory.take(step, self.estimate, drift, knot_tick)
+        return self.memory.take(step, self.estimate, drift)
 
     def remembered(self) -> DriftMemory | None:
         """The drift memory, where it gives the drift prior now (not while recovering)."""
@@ -267,16 +266,14 @@ class DriftMemory:
     steps are held, the slope is fitted (least squares) and given as the drift to carry on with;
     the fits take it as their prior's mean with std ``prior``. Released (forgotten, the fits'
     own drift again) when the last ``window`` steps' estimates leave the slope by ``turn``
-    cycles: one stage by that much, or all stages together along the reversal of the drift by
-    half as much (a drift that turns everywhere at once, a common thermal cause, shows on every
-    stage); the drift carried on is then the slope of that window's estimates, and the memory
-    fills again from there. A knot the knot test took lets it go too."""
+    cycles: one stage by that much, or all stages together along the reversal of the drift (a
+    drift that turns everywhere at once: a common thermal cause); the drift carried on is then
+    the slope of that window's estimates, and the memory fills again from there."""
 
     def __init__(self, span: int, least: int, window: int, prior: float, turn: float) -> None:
         self.span, self.least, self.window = int(span), int(least), int(window)
         self.prior, self.turn = float(prior), float(turn)
         self.turns = 0  # releases for a turn of the drift
-        self.knot_tick = None  # the reading the last knot was taken at, as last seen
         self.reset()
 
     def reset(self) -> None:
@@ -284,17 +281,9 @@ class DriftMemory:
         self.xs: deque = deque()
         self.slope: np.ndarray | None = None
 
-    def take(self, step: int, x: np.ndarray, drift: np.ndarray, knot_tick=None) -> np.ndarray:
+    def take(self, step: int, x: np.ndarray, drift: np.ndarray) -> np.ndarray:
         """Hold the estimate ``x`` taken at ``step``; the drift to carry on with (the slope,
-        or the fit's own ``drift`` while there is none or it was just released). A knot taken
-        since the last call (``knot_tick`` changed) is a turn the knot test found: the memory
-        lets go at once, and the knot's drift is carried on."""
-        knotted = self.knot_tick is not None and knot_tick != self.knot_tick
-        self.knot_tick = knot_tick
-        if knotted:
-            self.turns += 1
-            self.reset()
-            return drift
+        or the fit's own ``drift`` while there is none or it was just released)."""
         steps, xs = self.steps, self.xs
         if steps and step - steps[-1] > MEMORY_MAX_GAP:
             self.reset()
@@ -321,14 +310,13 @@ class DriftMemory:
 
     def _turned(self, t: np.ndarray, big_x: np.ndarray, slope: np.ndarray) -> bool:
         """Whether the last ``window`` steps' estimates left the line of ``slope``: one stage
-        by ``turn`` cycles, or all along the drift's reversal (-slope) by half as much."""
+        by ``turn`` cycles, or all along the drift's reversal (-slope) by as much."""
         k = min(self.window, t.size) - 1
         off = big_x[-1] - big_x[-1 - k] - (t[-1] - t[-1 - k]) * slope
         if float(np.max(np.abs(off))) > self.turn:
             return True
-        # all stages along -slope: one stage's noise, the root of N stages' turn
         size = float(np.linalg.norm(slope))
-        return size > 0.0 and -float(off @ slope) / size > 0.5 * self.turn
+        return size > 0.0 and -float(off @ slope) / size > self.turn
 
 
 def _slope(t: np.ndarray, x: np.ndarray) -> np.ndarray:
