@@ -7,17 +7,20 @@ rate. The rig's latency and the delay lines' response are given in milliseconds 
 of the loop (:func:`timed_config`), as the simulator node's ``latency_ms`` and
 ``actuator_lag_ms`` do.
 
-**The controller's compute caps its rate** (:class:`CappedLoop`). A reading that costs the
-controller ``c`` (``observe`` and the next command, as :func:`~ops_controller_ros.controllers.
-next_command` gives it) is answered by a command that the simulator takes on the first step
-whose reading comes after the answer: ``k = ceil(c / step_s)`` steps after the reading (1 when it
-fits in a period, the lockstep loop's convention). Until then the set-points hold (the same
-command, as :mod:`ops_contract.held` holds a decision), and the controller's next reading is the
-first to show its command: it issues one command every ``k`` steps and is told the steps between
-its readings (``observe(steps=k)``) and that the step just taken carried its command
-(``command_age`` 0), as a node on a free-running simulator is. ``c`` is measured per reading
-(thread CPU time, so other processes' load does not count; ``compute_scale`` for a machine
-faster or slower than this one) or fixed (``compute_ms``: reproducible runs and tests).
+**The controller's compute caps its rate** (:class:`CappedLoop`). A reading whose answer costs
+the controller ``c`` (``observe`` and the next ``command``) is answered by a command that the
+simulator takes on the first step whose reading comes after the answer: ``k = ceil(c / step_s)``
+steps after the reading (1 when it fits in a period, the lockstep loop's convention). Until then
+the set-points hold (the same command, as :mod:`ops_contract.held` holds a decision), and the
+controller's next reading is the first to show its command: it issues one command every ``k``
+steps and is told the steps between its readings (``observe(steps=k)``) and that the step just
+taken carried its command (``command_age`` 0), as a node on a free-running simulator is. The
+work a controller does once the command is out (``think()``: the tracker's deferred knot test,
+or its fit under ``answer_first``) is done as a node does it: after the answer, keeping the
+controller from its next reading until it ends, and a command it revised is taken when it
+ends. Each part's compute is measured (thread CPU time, so other processes' load does not count;
+``compute_scale`` for a machine faster or slower than this one) or fixed (``compute_ms``, for
+the answer, the work after it then counting for nothing: reproducible runs and tests).
 
 A learned policy is not told of a latency: it decides only on readings that show its last
 command (``wait_steps`` = the told latency; with ``k`` = 1 the hold of ``hold_steps`` auto,
@@ -45,7 +48,15 @@ from ops_contract.config import LIMITS, make_config
 
 from .continuous import LOCK, LOSS
 
-CONTROLLER_NAMES = ("tracker", "spgd")
+#: The controllers by name, each (the controller, its parameters): ``tracker-answer-first``
+#: is the tracker that answers each reading by its prediction and fits after (``answer_first``,
+#: for a fast loop: docs/loop_rate.md).
+CONTROLLERS = {
+    "tracker": ("tracker", {}),
+    "tracker-answer-first": ("tracker", {"answer_first": True}),
+    "spgd": ("spgd", {}),
+}
+CONTROLLER_NAMES = tuple(CONTROLLERS)
 #: Not a controller a rig can run: :class:`TrueErrorReference`, the floor of the others.
 REFERENCE = "oracle"
 
@@ -94,7 +105,8 @@ def phase_mrad(applied_fs, period_fs: float) -> np.ndarray:
 
 
 def label_of(name: str) -> str:
-    """A controller's name in tables: ``tracker``, ``spgd``, ``oracle`` or a model folder's."""
+    """A controller's name in tables: one of :data:`CONTROLLERS`, ``oracle`` or a model
+    folder's."""
     if name in CONTROLLER_NAMES or name == REFERENCE:
         return name
     return str(name).rstrip("/").split("/")[-1]
@@ -137,7 +149,7 @@ class TrueErrorReference:
 
 
 def make_agent(name: str, config, seed: int, setpoints_fs, model=None) -> tuple[Any, int]:
-    """The controller ``name`` (tracker or spgd, told of ``config``'s rig) or, for a model
+    """The controller ``name`` (of :data:`CONTROLLERS`, told of ``config``'s rig) or, for a model
     directory, its policy as a loop controller (``model``: its loaded
     :class:`~ops_controller_ros.runner_factory.ModelStack`, read once by the caller; the loop
     holds, so its own hold is 1). Returns (controller, wait_steps): readings a policy lets pass
@@ -145,7 +157,8 @@ def make_agent(name: str, config, seed: int, setpoints_fs, model=None) -> tuple[
     if name in CONTROLLER_NAMES:
         from ops_controller_ros.controllers import make_controller
 
-        return make_controller(name, config, {}, setpoints_fs=setpoints_fs, seed=seed), 0
+        kind, params = CONTROLLERS[name]
+        return make_controller(kind, config, params, setpoints_fs=setpoints_fs, seed=seed), 0
     from ops_controller_ros.policy_node import PolicyController
 
     stack = model.with_hold(1)
@@ -177,15 +190,35 @@ class CappedLoop:
         self.step = 0  # simulator steps taken
         self.setpoints = np.array(sim.setpoints_fs, dtype=np.float64)  # (1, N) in effect
         self.readings = 0  # readings the controller took
-        self.compute = ComputeLog()  # each answer's measured compute and steps to its taking
+        self.compute = ComputeLog()  # each reading's measured compute and steps to its answer
         self._last_read = 0
+        self._queue: list[tuple[int, np.ndarray]] = []  # (step that takes it, set-points)
+        self._busy_until = 0.0  # when the controller's work of its last reading ends, in steps
         self._answer(first=True)
+
+    def __setstate__(self, state: dict) -> None:
+        """A loop stored by a version that held one pending command (a soak's checkpoint)."""
+        if "_queue" not in state:
+            state["_queue"] = [(state.pop("_take_at"), state.pop("_pending"))]
+            state["_busy_until"] = 0.0
+        self.__dict__.update(state)
+
+    def _spent_ms(self, measured_ms: float, part: str) -> float:
+        """The compute a part of a reading's work counts for: measured (times
+        ``compute_scale``), or with a fixed ``compute_ms`` that for the answer and none for
+        the work after it."""
+        if self.compute_ms is None:
+            return measured_ms * self.compute_scale
+        return self.compute_ms if part == "answer" else 0.0
 
     def _answer(self, result=None, first: bool = False) -> None:
         """Take the reading ``result`` (None at the start: the first command, no reading) and
-        schedule the answer: taken ``k`` steps on, the next reading ``wait`` after that."""
-        from ops_controller_ros.controllers import next_command
-
+        schedule the answer, as a node gives it: the command when ``observe`` and ``command``
+        are done, ``think()`` after it is out, and a command that think revised once that is
+        done. The work starts when the controller is free (the work of the reading before may
+        still run); the next reading is ``wait`` steps after the step that took the last
+        command."""
+        start = max(float(self.step), self._busy_until)
         t0 = time.thread_time()
         if not first:
             self.ctl.observe(
@@ -195,15 +228,24 @@ class CappedLoop:
                 command_age=0,
             )
             self.readings += 1
-        command = np.asarray(next_command(self.ctl), dtype=np.float64)
-        spent_ms = (time.thread_time() - t0) * 1e3
-        used = spent_ms * self.compute_scale if self.compute_ms is None else self.compute_ms
-        k = steps_for(used / 1e3, self.step_s)
-        self.compute.add(spent_ms, k, first)
+        command = np.asarray(self.ctl.command(), dtype=np.float64)
+        t1 = time.thread_time()
+        think = getattr(self.ctl, "think", None)
+        revised = think is not None and think()
+        t2 = time.thread_time()
+        waited_s = (start - self.step) * self.step_s  # (still at the last reading's work)
+        answer_s = waited_s + self._spent_ms((t1 - t0) * 1e3, "answer") / 1e3
+        done_s = answer_s + self._spent_ms((t2 - t1) * 1e3, "think") / 1e3
+        k = steps_for(answer_s, self.step_s)
+        self.compute.add((t2 - t0) * 1e3, k, first)
+        shape = self.setpoints.shape
+        self._queue = [(self.step + k, command.reshape(shape))]
+        if revised:  # (sent again at once: the node's revised command)
+            again = np.asarray(self.ctl.command(), dtype=np.float64).reshape(shape)
+            self._queue.append((self.step + steps_for(done_s, self.step_s), again))
+        self._busy_until = self.step + done_s / self.step_s
         self._last_read = self.step
-        self._pending = command.reshape(self.setpoints.shape)
-        self._take_at = self.step + k
-        self._read_at = self._take_at + self.wait
+        self._read_at = self._queue[-1][0] + self.wait
 
     def run(self, steps: int) -> tuple[np.ndarray, np.ndarray]:
         """``steps`` simulator steps: P_N/P_max (steps,) and the applied delays (steps, N) fs of
@@ -213,8 +255,8 @@ class CappedLoop:
         applied = np.empty((int(steps), sim.stage))
         for i in range(int(steps)):
             self.step += 1
-            if self.step == self._take_at:
-                self.setpoints = self._pending
+            while self._queue and self._queue[0][0] <= self.step:
+                self.setpoints = self._queue.pop(0)[1]
             result = sim.step_setpoints(self.setpoints)
             power[i] = result.power[0]
             applied[i] = result.applied_fs[0]

@@ -82,6 +82,7 @@ class RigNode(Node):
         )
         self._pub_power = self.create_publisher(Float32, TOPIC_POWER, QOS_RELIABLE)
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self._passed = None  # (bytes, volts) of the last command the inbox's check passed
         self._inbox = CommandInbox(self, TOPIC_DELAY_CMD, self._command_problem)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset)
 
@@ -118,7 +119,19 @@ class RigNode(Node):
         return time.monotonic() - self.last_good <= self.config.stale_s
 
     def _command_problem(self, values: np.ndarray) -> str | None:
-        return command_volts(values.tolist(), self.stage, self.cal, self.limits)[1]
+        """The inbox's check; the voltages of a command it passes are kept for its taking."""
+        volts, problem = command_volts(values.tolist(), self.stage, self.cal, self.limits)
+        if volts is not None:
+            self._passed = (values.tobytes(), volts)
+        return problem
+
+    def _volts_of(self, values: np.ndarray):
+        """The drive voltages of a command the inbox passed: kept by its check, which the inbox
+        runs on every valid command it takes, in order, before it returns the newest of them
+        (computed again should another command be given)."""
+        if self._passed is not None and self._passed[0] == values.tobytes():
+            return self._passed[1]
+        return command_volts(values.tolist(), self.stage, self.cal, self.limits)[0]
 
     # ------------------------------------------------------------------ the loop
     def _connect(self, now: float) -> None:
@@ -157,7 +170,7 @@ class RigNode(Node):
         if not self.fresh:
             self._warn("stale_cmd", "delay command ignored: no fresh trace (holding the piezos)")
             return
-        volts, _ = command_volts(values.tolist(), self.stage, self.cal, self.limits)
+        volts = self._volts_of(values)
         if volts is not None:
             self.target = volts
 

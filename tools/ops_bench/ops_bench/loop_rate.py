@@ -40,6 +40,8 @@ import sys
 import time
 from pathlib import Path
 
+from ops_contract.config import TIME_BASES, VIBRATIONS
+
 from ops_bench.closed_loop import REPO, group_cpu_s, local_dds, power_node, start, stop_all
 from ops_bench.docs import publish
 
@@ -298,13 +300,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--model", default=str(REPO / "models" / "n5_hard_switch"))
     ap.add_argument(
         "--time-base",
-        choices=("step", "seconds"),
+        choices=TIME_BASES,
         default="step",
         help="the simulator's time_base: seconds makes a step last 1/rate_hz s (physical time)",
     )
     ap.add_argument(
         "--vibration",
-        choices=("none", "lab", "open"),
+        choices=VIBRATIONS,
         default="none",
         help="the simulator's vibration preset (needs --time-base seconds); the tracker is told it",
     )

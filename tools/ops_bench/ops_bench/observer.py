@@ -99,7 +99,9 @@ class TopicObserver:
         )
 
     def close(self):
+        # The spinning thread ends before the node goes: destroyed under its wait, the node's
+        # handles raised in that thread (InvalidHandle, "destruction was requested").
         self.executor.shutdown(timeout_sec=2.0)
+        self._thread.join(timeout=5.0)
         self.node.destroy_node()
         self._rclpy.try_shutdown(context=self.context)
-        self._thread.join(timeout=5.0)

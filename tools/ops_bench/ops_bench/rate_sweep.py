@@ -60,9 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         default=list(CONTROLLERS),
         metavar="NAME",
-        help="tracker, spgd, model directories, or oracle: the floor of any controller at "
-        "each rate and latency (it reads the true delay errors: ops_experiments.timed_loop."
-        "TrueErrorReference) (default: %(default)s)",
+        help="tracker, tracker-answer-first (answer_first: a reading answered by the "
+        "prediction, fitted after), spgd, model directories, or oracle: the floor of any "
+        "controller at each rate and latency (it reads the true delay errors: "
+        "ops_experiments.timed_loop.TrueErrorReference) (default: %(default)s)",
     )
     p.add_argument(
         "--rates",

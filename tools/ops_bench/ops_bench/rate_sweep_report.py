@@ -252,9 +252,12 @@ Written by `ops-bench rate-sweep` (tools/ops_bench/ops_bench/rate_sweep.py) from
 `cells.jsonl` (one JSON line per controller, loop rate and seed). The simulator runs in process
 under `time_base` seconds (a simulated second holds the same random walk, drift and vibration at
 any rate; docs/physics.md) on the `lab` rig, the rig's latency and delay-line response given in
-ms. A controller's compute caps its rate: a reading that costs more than a loop period is
-answered that many whole periods later, the set-points holding in between, and the controller
-reads next the first reading that shows its answer (ops_experiments/timed_loop.py). Compute is
+ms. A controller's compute caps its rate: a reading whose answer costs more than a loop period
+is answered that many whole periods later, the set-points holding in between, and the controller
+reads next the first reading that shows its answer; the work it does once the command is out
+(the tracker's `think()`: a deferred knot test, or the fit of `tracker-answer-first`) keeps it
+from that reading until the work ends, and a command it revised is taken then
+(ops_experiments/timed_loop.py). Compute (per reading, both parts) is
 the controller's thread CPU time per reading on this 2-core machine (others' load excluded),
 unless fixed (`--compute-ms`). Figures are taken over every simulator step from the first at
 P_N/P_max >= 0.95 on: residual phase = 2 pi x (delay error to the nearest whole optical period)

@@ -86,6 +86,47 @@ def test_a_capped_controller_commands_every_k_steps(k):
     assert loop.compute_figures()["steps_per_command_median"] == k
 
 
+class Thinker(Recorder):
+    """A controller whose work after the command (``think``) takes 25 ms of CPU, the first
+    time revising the command it gave."""
+
+    def __init__(self):
+        super().__init__()
+        self.commands = 0
+        self.thought = 0
+
+    def command(self):
+        self.commands += 1
+        return np.full(self.stage, float(self.commands))
+
+    def think(self):
+        import time
+
+        t0 = time.thread_time()
+        while time.thread_time() - t0 < 0.025:
+            pass
+        self.thought += 1
+        return self.thought == 1
+
+
+def test_the_work_after_the_command_delays_the_next_reading_not_the_answer():
+    config = timed_config(100.0, realism="ideal", vibration="none", latency_ms=0, lag_ms=0)
+    sim = BatchedSimulation(config, 1, seed=1)
+    sim.reset(seed=1)
+    taken, step = [], sim.step_setpoints
+    sim.step_setpoints = lambda s: taken.append(float(np.ravel(s)[0])) or step(s)
+    ctl = Thinker()
+    loop = CappedLoop(sim, ctl, compute_ms=None)  # measured: 25 ms of think is 2.5 steps
+    loop.run(100)
+    # the first answer is taken at once, its revision when the think ends (step 3) ...
+    assert taken[:3] == [1.0, 1.0, 2.0]
+    # ... and each reading's work, 2.5 steps and a little, keeps the controller from the next:
+    # it works without pause, a reading every 2.5 steps or so (with the think counted in the
+    # answer it would be one every 3 steps: 33)
+    assert 34 <= ctl.answers <= 40, ctl.answers
+    assert {steps for steps, _ in ctl.told} <= {1, 2, 3}
+
+
 def test_a_policy_waits_for_its_command_to_show():
     # a latency of 2 steps: the next reading is 2 steps after the step that took the command
     loop, ctl, _ = recorded_loop(100.0, compute_ms=0.0, wait_steps=2)
