@@ -194,7 +194,7 @@ class TrackerParams:
     vibration_drift_prior_cycles: float = _declare(
         0.0001,
         "under a told vibration, how far one window may move the drift estimate, cycles per "
-        "0.1 s (std)",
+        "0.1 s (std; also after a drift turn, knot or not)",
         0.0,
         low_open=True,
     )
@@ -214,8 +214,9 @@ class TrackerParams:
     # vibration, once the lock has tracked for a sixth of vibration_memory_s, the drift prior's
     # mean is the slope of the estimates taken over the last vibration_memory_s (its std
     # vibration_memory_prior_cycles), released when the last window's estimates leave that
-    # slope by vibration_turn_cycles, one stage's or all stages' reversing at once
-    # (.tracking.DriftMemory; docs/tracker.md).
+    # slope by vibration_turn_cycles, one stage's or all stages' reversing at once; then the
+    # fits' own drift under vibration_drift_prior_cycles, no faster than twice the slope let
+    # go of, until the memory holds its sixth again (.tracking.DriftMemory; docs/tracker.md).
     vibration_memory_s: float = _declare(
         120.0,
         "under a told vibration, seconds of estimates whose slope is the drift prior's mean "
@@ -233,7 +234,8 @@ class TrackerParams:
     vibration_turn_cycles: float = _declare(
         0.05,
         "under a told vibration, how far a window's estimates may leave the remembered slope "
-        "before the drift is taken as turned, cycles",
+        "before the drift is taken as turned (the fits' own again, no faster than twice the "
+        "slope), cycles",
         0.0,
         low_open=True,
     )

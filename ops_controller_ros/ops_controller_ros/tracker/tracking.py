@@ -97,9 +97,9 @@ class Lock:
     def remembered(self) -> DriftMemory | None:
         """The drift memory, where it gives the drift prior now (not while recovering)."""
         memory = self.memory
-        if memory is None or memory.slope is None or self.recovering is not None:
+        if memory is None or self.recovering is not None:
             return None
-        return memory
+        return None if memory.slope is None and memory.limit is None else memory
 
     def defer(self, hop, gap: int) -> None:
         """Put this reading's tracking fit off until the command is out (``answer_first``):
@@ -253,6 +253,10 @@ def largest_gap(age: np.ndarray) -> float:
 #: Steps between two fits taken beyond which the estimates before are forgotten (a re-lock, an
 #: outage: the estimate may have moved by more than the drift).
 MEMORY_MAX_GAP = 5
+#: After a turn, the fastest drift believed until the memory holds a slope again, in times the
+#: fastest stage's slope let go of (a drift that turns does not run off to many times its speed;
+#: a knot fit at the turn, its drift told by a few readings, can).
+TURN_SPEED = 2.0
 
 
 class DriftMemory:
@@ -264,15 +268,19 @@ class DriftMemory:
     percent within seconds, and the estimate follows it off. The estimates taken over a minute
     tell the drift to a few percent (the walk's sigma over the root of the steps). Once ``least``
     steps are held, the slope is fitted (least squares) and given as the drift to carry on with;
-    the fits take it as their prior's mean with std ``prior``. Released (forgotten, the fits'
-    own drift again) when the last ``window`` steps' estimates leave the slope by ``turn``
-    cycles: one stage by that much, or all stages together along the reversal of the drift (a
-    drift that turns everywhere at once: a common thermal cause); the drift carried on is then
-    the slope of that window's estimates, and the memory fills again from there."""
+    the fits take it as their prior's mean with std ``prior``. Released (forgotten) when the
+    last ``window`` steps' estimates leave the slope by ``turn`` cycles: one stage by that much,
+    or all stages together along the reversal of the drift (a drift that turns everywhere at
+    once: a common thermal cause). The fits' own drift goes on then, from the slope of that
+    window's estimates, and the memory fills again; with ``after`` > 0 under a drift prior of
+    that std and no faster than TURN_SPEED times the fastest stage's slope let go of, until
+    the memory holds ``least`` steps again."""
 
-    def __init__(self, span: int, least: int, window: int, prior: float, turn: float) -> None:
+    def __init__(
+        self, span: int, least: int, window: int, prior: float, turn: float, after: float = 0.0
+    ) -> None:
         self.span, self.least, self.window = int(span), int(least), int(window)
-        self.prior, self.turn = float(prior), float(turn)
+        self.tight, self.turn, self.after = float(prior), float(turn), float(after)
         self.turns = 0  # releases for a turn of the drift
         self.reset()
 
@@ -280,10 +288,12 @@ class DriftMemory:
         self.steps: deque = deque()
         self.xs: deque = deque()
         self.slope: np.ndarray | None = None
+        self.limit: float | None = None  # after a turn: the fastest drift believed
+        self.prior = self.tight
 
     def take(self, step: int, x: np.ndarray, drift: np.ndarray) -> np.ndarray:
         """Hold the estimate ``x`` taken at ``step``; the drift to carry on with (the slope,
-        or the fit's own ``drift`` while there is none or it was just released)."""
+        or the fit's own ``drift`` while there is none, after a turn within ``limit``)."""
         steps, xs = self.steps, self.xs
         if steps and step - steps[-1] > MEMORY_MAX_GAP:
             self.reset()
@@ -295,16 +305,26 @@ class DriftMemory:
             xs.popleft()
         if step - steps[0] < self.least:
             self.slope = None
-            return drift
+            if self.limit is None:
+                return drift
+            return np.minimum(np.maximum(drift, -self.limit), self.limit)
         t = np.array(steps, dtype=np.float64)
         big_x = np.array(xs)
         slope = _slope(t, big_x)
+        self.limit, self.prior = None, self.tight
         if self._turned(t, big_x, slope):
-            # the drift turned: the fits' own drift again, from the last window's slope
+            # the drift turned: the fits' own drift again, from the last window's slope, and
+            # (``after`` > 0) under a prior of ``after`` and no faster than TURN_SPEED times
+            # the fastest stage's slope let go of
             self.turns += 1
             self.reset()
             k = min(self.window, t.size)
-            return _slope(t[-k:], big_x[-k:])
+            carried = _slope(t[-k:], big_x[-k:])
+            if self.after > 0.0:
+                self.limit = TURN_SPEED * float(np.max(np.abs(slope)))
+                self.prior = self.after
+                carried = np.minimum(np.maximum(carried, -self.limit), self.limit)
+            return carried
         self.slope = slope
         return slope
 
@@ -334,4 +354,6 @@ def drift_memory(p: TrackerParams, config, vibration) -> DriftMemory | None:
     scale = float(getattr(config, "time_scale", 1.0))
     span = max(round(p.vibration_memory_s / step_s), 2 * p.window)
     prior = p.vibration_memory_prior_cycles * scale
-    return DriftMemory(span, max(span // 6, p.window), p.window, prior, p.vibration_turn_cycles)
+    after = p.noisy_drift_prior_cycles  # (under a told vibration: vibration_drift_prior_cycles)
+    least = max(span // 6, p.window)
+    return DriftMemory(span, least, p.window, prior, p.vibration_turn_cycles, after)
