@@ -72,8 +72,12 @@ the excursion. Under a told vibration the fits also take the ``vibration_*`` set
 ``vibration_drift_prior_cycles``, both per physical time (per step of ``step_s``), a window of
 ``vibration_window`` readings with a prior on its first errors from the last path taken
 (``vibration_arrival_cycles``: the fit remembers more than its window), a smaller excursion on a
-noisy detector (``vibration_dither_factor``) and a knot test asked for only by a path step of
-``vibration_knot_walk_sigmas`` (a stiff walk's few sigmas are the vibration's, not a knot).
+noisy detector (``vibration_dither_factor``), a knot test asked for only by a path step of
+``vibration_knot_walk_sigmas`` (a stiff walk's few sigmas are the vibration's, not a knot) and a
+drift remembered over ``vibration_memory_s``: the slope of the estimates taken, the drift prior's
+mean (std ``vibration_memory_prior_cycles``) until the estimates leave it by
+``vibration_turn_cycles``, then the fits' own drift under ``vibration_drift_prior_cycles``, no
+faster than twice the slope let go of, until it fills again (:class:`.tracking.DriftMemory`).
 
 Detector noise: the first two readings of an acquisition are taken at the same set-points; their
 difference measures the noise variance, which widens the residual tolerance and the tracking

@@ -35,6 +35,7 @@ from .tracking import (
     Lock,
     bounded,
     detector_settled,
+    drift_memory,
     drift_prior,
     gain_prior,
     largest_gap,
@@ -126,7 +127,7 @@ class PhaseTracker:
         self.loop = Loop.start(self.rig.cycles(setpoints_fs))
         self.noise = Noise(told_noisy=self.rig.told_noisy)
         self.window = Window(fit_window(p, self.rig.told_noisy))
-        self.lock = Lock(self.stage)
+        self.lock = Lock(self.stage, memory=drift_memory(p, self.model, self.rig.vibration))
         self.search = Search()
         self.knot = Knots()
         self.guard = Guard(p)
@@ -166,8 +167,7 @@ class PhaseTracker:
         """The reading produced by the last :meth:`command`; updates the estimate.
 
         ``steps``: the simulator (or rig) steps since the previous reading (1 in process and in
-        lockstep). A free-running simulator steps whether or not the command came: a late
-        command costs a step on the old set-points, and the drift moves the delays a step more.
+        lockstep; free-running, a late command costs a step on the old set-points and drift).
 
         ``command_age``: steps from the step that took the last command to this reading's (0:
         this step took it; the nodes read it from ``ops/delays``). With a latency, a command acts
@@ -336,9 +336,9 @@ class PhaseTracker:
         a :class:`.fit.PathFitRun` (``kwargs``: its ``ratio``, ``knots``, ``prune``, ``path0``,
         ``chunk``). The readings weigh by the reading std the noise implies, the walk by the
         model's; the drift's prior and the detector line's are those of now."""
-        p, rig, tick, knot = self.params, self.rig, self.loop.tick, self.knot
-        prior = drift_prior(p, self._noisy(), tick - knot.tick, knot.cut_short)
-        gain = gain_prior(p, tick - self.lock.lock_tick, self.window.length)
+        p, rig, tick, knot, lock = self.params, self.rig, self.loop.tick, self.knot, self.lock
+        prior = drift_prior(p, self._noisy(), tick - knot.tick, knot.cut_short, lock.remembered())
+        gain = gain_prior(p, tick - lock.lock_tick, self.window.length)
         steps = self.loop.step - age.astype(np.int64)  # (a told vibration: the window's arrival)
         kwargs.setdefault("arrival", self.lock.arrival(steps, rig.arrival_sd(p)))
         return fit.PathFitRun(
@@ -487,6 +487,7 @@ class PhaseTracker:
         # the model's pulse envelopes are evaluated where the pulses are (wrapped, the set-points
         # would carry the drift's whole cycles, and the residuals grow over a long run).
         lock.estimate = x
+        lock.drift = bounded(p, lock.remember(lock.drift, self.loop.step))
         lock.keep_taken(self.loop.step - age.astype(np.int64))
         if p.calibrate:
             self._calibrate(u, lock.path)

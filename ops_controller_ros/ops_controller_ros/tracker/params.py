@@ -194,7 +194,7 @@ class TrackerParams:
     vibration_drift_prior_cycles: float = _declare(
         0.0001,
         "under a told vibration, how far one window may move the drift estimate, cycles per "
-        "0.1 s (std)",
+        "0.1 s (std; also after a drift turn, knot or not)",
         0.0,
         low_open=True,
     )
@@ -207,6 +207,35 @@ class TrackerParams:
     vibration_knot_walk_sigmas: float = _declare(
         3.0,
         "under a told vibration, knot_walk_sigmas (clean or noisy detector)",
+        0.0,
+        low_open=True,
+    )
+    # A window's drift is mostly the walk and the vibration read as drift: under a told
+    # vibration, once the lock has tracked for a sixth of vibration_memory_s, the drift prior's
+    # mean is the slope of the estimates taken over the last vibration_memory_s (its std
+    # vibration_memory_prior_cycles), released when the last window's estimates leave that
+    # slope by vibration_turn_cycles, one stage's or all stages' reversing at once; then the
+    # fits' own drift under vibration_drift_prior_cycles, no faster than twice the slope let
+    # go of, until the memory holds its sixth again (.tracking.DriftMemory; docs/tracker.md).
+    vibration_memory_s: float = _declare(
+        120.0,
+        "under a told vibration, seconds of estimates whose slope is the drift prior's mean "
+        "(0: off)",
+        0.0,
+        3600.0,
+    )
+    vibration_memory_prior_cycles: float = _declare(
+        2e-5,
+        "under a told vibration, the drift prior's std about the remembered slope, cycles per "
+        "0.1 s",
+        0.0,
+        low_open=True,
+    )
+    vibration_turn_cycles: float = _declare(
+        0.05,
+        "under a told vibration, how far a window's estimates may leave the remembered slope "
+        "before the drift is taken as turned (the fits' own again, no faster than twice the "
+        "slope), cycles",
         0.0,
         low_open=True,
     )
