@@ -371,6 +371,8 @@ def drift_memory(p: TrackerParams, config, vibration) -> DriftMemory | None:
     if vibration is None or p.vibration_memory_s <= 0.0:
         return None
     step_s = float(getattr(config, "step_s", 0.1))
+    if p.window * step_s < p.vibration_memory_min_window_s:
+        return None  # (a window this short follows the vibration's slow part as drift)
     scale = float(getattr(config, "time_scale", 1.0))
     span = max(round(p.vibration_memory_s / step_s), 2 * p.window)
     prior = p.vibration_memory_prior_cycles * scale
