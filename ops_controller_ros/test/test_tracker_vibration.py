@@ -5,6 +5,8 @@ vibration is told."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from ops_contract.config import make_config
@@ -112,6 +114,21 @@ def _line(rng, steps, drift, walk=0.001, noise=0.004):
     """Estimates of a drift with a random walk, each off by ``noise`` (K, N)."""
     path = np.cumsum(drift + walk * rng.standard_normal((steps, drift.size)), axis=0)
     return path + noise * rng.standard_normal(path.shape)
+
+
+@pytest.mark.parametrize(("rate", "remembered"), [(10, True), (100, True), (300, False)])
+def test_only_a_window_of_a_tenth_of_a_second_or_more_takes_the_drift_memory(rate, remembered):
+    """A 20-reading window at 300 Hz spans 67 ms, in which the vibration's slow part is a slope
+    its own drift follows: there the fits keep their own drift (docs/loop_rate.md)."""
+    from ops_controller_ros.tracker.tracking import drift_memory
+
+    config = _timed(rate)
+    p = under_vibration(TrackerParams(), config)
+    vibration = told_vibration(TrackerParams(), config)
+    assert vibration is not None
+    assert (drift_memory(p, config, vibration) is not None) is remembered
+    shorter = replace(p, vibration_memory_min_window_s=0.0)
+    assert drift_memory(shorter, config, vibration) is not None
 
 
 def test_the_drift_memory_remembers_the_slope_of_a_long_span():
