@@ -224,13 +224,9 @@ class TrackerParams:
         0.0,
         3600.0,
     )
-    # ... only where a window spans this long or longer: in a shorter one (300 Hz: 67 ms) the
-    # vibration's slow part is a slope its own drift follows (docs/loop_rate.md)
+    # ... in a window this long or longer (shorter: its own drift follows the vibration)
     vibration_memory_min_window_s: float = _declare(
-        0.1,
-        "under a told vibration, the shortest window (readings x step_s) that takes the "
-        "drift memory, s",
-        0.0,
+        0.1, "under a told vibration, the shortest window that takes the drift memory, s", 0.0
     )
     vibration_memory_prior_cycles: float = _declare(
         2e-5,
