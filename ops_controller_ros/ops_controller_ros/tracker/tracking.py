@@ -309,7 +309,11 @@ class DriftMemory:
         self.xs: deque = deque()
         self.slope: np.ndarray | None = None
         self.limit: float | None = None  # after a turn: the fastest drift believed
-        self.prior = self.tight
+
+    @property
+    def prior(self) -> float:
+        """The drift prior's std: ``after`` while a turn's limit holds, else the tight one."""
+        return self.tight if self.limit is None else self.after
 
     def take(self, step: int, x: np.ndarray, drift: np.ndarray) -> np.ndarray:
         """Hold the estimate ``x`` taken at ``step``; the drift to carry on with (the slope,
@@ -325,13 +329,11 @@ class DriftMemory:
             xs.popleft()
         if step - steps[0] < self.least:
             self.slope = None
-            if self.limit is None:
-                return drift
-            return np.minimum(np.maximum(drift, -self.limit), self.limit)
+            return drift if self.limit is None else np.clip(drift, -self.limit, self.limit)
         t = np.array(steps, dtype=np.float64)
         big_x = np.array(xs)
         slope = _slope(t, big_x)
-        self.limit, self.prior = None, self.tight
+        self.limit = None
         if self._turned(t, big_x, slope):
             # the drift turned: the fits' own drift again, from the last window's slope, and
             # (``after`` > 0) under a prior of ``after`` and no faster than TURN_SPEED times
@@ -342,8 +344,7 @@ class DriftMemory:
             carried = _slope(t[-k:], big_x[-k:])
             if self.after > 0.0:
                 self.limit = TURN_SPEED * float(np.max(np.abs(slope)))
-                self.prior = self.after
-                carried = np.minimum(np.maximum(carried, -self.limit), self.limit)
+                carried = np.clip(carried, -self.limit, self.limit)
             return carried
         self.slope = slope
         return slope
