@@ -104,23 +104,11 @@ def test_the_tracker_holds_the_lab_vibration_at_10_hz(seed):
     assert longest <= 5, longest  # no lock lost
 
 
-def _memory(span=1200, least=200, window=20, prior=2e-5, turn=0.05, after=0.0):
-    from ops_controller_ros.tracker.tracking import DriftMemory
-
-    return DriftMemory(span, least, window, prior, turn, after)
-
-
-def _line(rng, steps, drift, walk=0.001, noise=0.004):
-    """Estimates of a drift with a random walk, each off by ``noise`` (K, N)."""
-    path = np.cumsum(drift + walk * rng.standard_normal((steps, drift.size)), axis=0)
-    return path + noise * rng.standard_normal(path.shape)
-
-
 @pytest.mark.parametrize(("rate", "remembered"), [(10, True), (100, True), (300, False)])
 def test_only_a_window_of_a_tenth_of_a_second_or_more_takes_the_drift_memory(rate, remembered):
     """A 20-reading window at 300 Hz spans 67 ms, in which the vibration's slow part is a slope
     its own drift follows: there the fits keep their own drift (docs/loop_rate.md)."""
-    from ops_controller_ros.tracker.tracking import drift_memory
+    from ops_controller_ros.tracker.drift_memory import drift_memory
 
     config = _timed(rate)
     p = under_vibration(TrackerParams(), config)
@@ -129,80 +117,6 @@ def test_only_a_window_of_a_tenth_of_a_second_or_more_takes_the_drift_memory(rat
     assert (drift_memory(p, config, vibration) is not None) is remembered
     shorter = replace(p, vibration_memory_min_window_s=0.0)
     assert drift_memory(shorter, config, vibration) is not None
-
-
-def test_the_drift_memory_remembers_the_slope_of_a_long_span():
-    rng = np.random.default_rng(0)
-    drift = np.array([0.001, -0.0008, 0.0012, 0.0005, -0.001])
-    memory, error = _memory(), []
-    for step, x in enumerate(_line(rng, 1200, drift)):
-        carried = memory.take(step, x, drift + 5e-4)  # a window's own drift, well off
-        if step < 200:
-            assert memory.slope is None and np.array_equal(carried, drift + 5e-4)
-        elif memory.slope is not None:
-            assert np.array_equal(carried, memory.slope)
-            error.append(np.abs(memory.slope - drift).max())
-    # a walk of 0.001 a step over a minute and more: the slope to about 1e-4 (not the 5e-4 of
-    # the window's), held nearly throughout (a release where there is no turn is rare)
-    assert memory.turns <= 3
-    assert len(error) > 700
-    assert max(error[-200:]) < 1.5e-4, max(error[-200:])
-
-
-@pytest.mark.parametrize(("stages", "speed"), [((0, 1, 2, 3, 4), 0.001), ((2,), 0.003)])
-def test_the_drift_memory_lets_go_at_a_turn(stages, speed):
-    # all stages reversing a drift of 0.001 cycles a step (hard mode's), or one stage a faster
-    # one (one stage's turn of the slowest drifts stays within the window's noise)
-    rng = np.random.default_rng(4)
-    drift = np.full(5, speed)
-    memory = _memory(after=1e-4)
-    xs = _line(rng, 600, drift)
-    for step, x in enumerate(xs):
-        memory.take(step, x, drift)
-    assert memory.slope is not None and memory.turns == 0
-    held = memory.slope.copy()
-    turned = drift.copy()
-    turned[list(stages)] *= -1.0  # the drift reverses
-    x, carried = xs[-1], None
-    for step in range(600, 640):
-        x = x + turned + 0.001 * rng.standard_normal(5)
-        carried = memory.take(step, x, drift)
-        if memory.turns:
-            break
-    # let go within a window and a half, on from the last window's slope (below the one held:
-    # toward the new drift), with the moderate prior and no faster than twice the slope held
-    assert memory.turns == 1 and memory.slope is None, step
-    assert step - 600 <= 30
-    assert np.mean(carried[list(stages)]) < np.mean(held[list(stages)]), carried
-    assert memory.prior == 1e-4
-    assert memory.limit == pytest.approx(2.0 * np.abs(held).max(), rel=0.05)
-    # the fits' own drift until the memory holds a slope again, within that speed
-    assert np.array_equal(memory.take(step + 1, x + turned, turned), turned)
-    fast = memory.take(step + 2, x + 2 * turned, 10.0 * turned)  # a knot fit's few readings
-    assert np.array_equal(np.abs(fast), np.full(5, memory.limit))
-    for later in range(step + 3, step + 260):
-        x = x + turned + 0.001 * rng.standard_normal(5)
-        carried = memory.take(later, x, turned)
-    assert memory.slope is not None and memory.limit is None and memory.prior == 2e-5
-    assert np.array_equal(carried, memory.slope)
-    assert np.abs(memory.slope - turned).max() < 2e-4
-
-
-def test_without_a_prior_after_a_turn_the_fits_own_drift_goes_on():
-    rng = np.random.default_rng(4)
-    drift = np.full(5, 0.001)
-    memory = _memory(after=0.0)
-    xs = _line(rng, 600, drift)
-    for step, x in enumerate(xs):
-        memory.take(step, x, drift)
-    x = xs[-1]
-    for step in range(600, 640):
-        x = x - drift + 0.001 * rng.standard_normal(5)
-        memory.take(step, x, drift)
-        if memory.turns:
-            break
-    assert memory.turns == 1 and memory.limit is None and memory.prior == 2e-5
-    assert np.array_equal(memory.take(step + 1, x - drift, -10 * drift), -10 * drift)
 
 
 def _reversing(seed: int, seconds: float, after: float | None = None):

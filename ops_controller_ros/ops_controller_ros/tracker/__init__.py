@@ -74,10 +74,11 @@ the excursion. Under a told vibration the fits also take the ``vibration_*`` set
 (``vibration_arrival_cycles``: the fit remembers more than its window), a smaller excursion on a
 noisy detector (``vibration_dither_factor``), a knot test asked for only by a path step of
 ``vibration_knot_walk_sigmas`` (a stiff walk's few sigmas are the vibration's, not a knot) and a
-drift remembered over ``vibration_memory_s``: the slope of the estimates taken, the drift prior's
-mean (std ``vibration_memory_prior_cycles``) until the estimates leave it by
-``vibration_turn_cycles``, then the fits' own drift under ``vibration_drift_prior_cycles``, no
-faster than twice the slope let go of, until it fills again (:class:`.tracking.DriftMemory`).
+drift remembered over ``vibration_memory_s``: each stage's slope of the estimates taken, the
+drift prior's mean (std ``vibration_memory_prior_cycles``), a stage let go of alone where its
+estimates leave its line by ``vibration_turn_cycles`` and every stage where the whole drift
+reverses; then the fits' own drift under ``vibration_drift_prior_cycles``, no faster than twice
+the slope let go of, until it fills again (:mod:`.drift_memory`).
 
 Detector noise: the first two readings of an acquisition are taken at the same set-points; their
 difference measures the noise variance, which widens the residual tolerance and the tracking

@@ -23,6 +23,7 @@ from ..calibration import ModelCalibration
 from . import fit, knots, work
 from .acquisition import Search, acquire, fit_detector_to, relock_drifts
 from .commands import Loop, excursion, hold_dither
+from .drift_memory import drift_memory
 from .knots import KnotJob, Knots
 from .latency_check import LatencyWatch
 from .model import RigModel, told_noise
@@ -35,7 +36,6 @@ from .tracking import (
     Lock,
     bounded,
     detector_settled,
-    drift_memory,
     drift_prior,
     gain_prior,
     largest_gap,

@@ -211,12 +211,10 @@ class TrackerParams:
         low_open=True,
     )
     # A window's drift is mostly the walk and the vibration read as drift: under a told
-    # vibration, once the lock has tracked for a sixth of vibration_memory_s, the drift prior's
-    # mean is the slope of the estimates taken over the last vibration_memory_s (its std
-    # vibration_memory_prior_cycles), released when the last window's estimates leave that
-    # slope by vibration_turn_cycles, one stage's or all stages' reversing at once; then the
-    # fits' own drift under vibration_drift_prior_cycles, no faster than twice the slope let
-    # go of, until the memory holds its sixth again (.tracking.DriftMemory; docs/tracker.md).
+    # vibration each stage's drift prior's mean is the slope of its estimates over the last
+    # vibration_memory_s (std vibration_memory_prior_cycles), a stage let go of alone where its
+    # window leaves that slope by vibration_turn_cycles, every stage where the whole drift
+    # reverses (.drift_memory; docs/tracker.md).
     vibration_memory_s: float = _declare(
         120.0,
         "under a told vibration, seconds of estimates whose slope is the drift prior's mean "
@@ -238,8 +236,8 @@ class TrackerParams:
     vibration_turn_cycles: float = _declare(
         0.05,
         "under a told vibration, how far a window's estimates may leave the remembered slope "
-        "before the drift is taken as turned (the fits' own again, no faster than twice the "
-        "slope), cycles",
+        "(one stage's, or every stage's along the drift's reversal) before it is let go of, "
+        "cycles",
         0.0,
         low_open=True,
     )

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .drift_memory import DriftMemory
 from .fit import PathFits, wrap
 from .params import TrackerParams
 
@@ -109,9 +110,9 @@ class Lock:
     def remembered(self) -> DriftMemory | None:
         """The drift memory, where it gives the drift prior now (not while recovering)."""
         memory = self.memory
-        if memory is None or self.recovering is not None:
+        if memory is None or self.recovering is not None or not memory.active:
             return None
-        return None if memory.slope is None and memory.limit is None else memory
+        return memory
 
     def defer(self, hop, gap: int) -> None:
         """Put this reading's tracking fit off until the command is out (``answer_first``):
@@ -212,16 +213,17 @@ def detector_settled(p: TrackerParams, calibration) -> bool:
     return not p.calibrate or (calibration.detector_fitted and not calibration.detector_provisional)
 
 
-def drift_prior(
-    p: TrackerParams, noisy: bool, since_knot: int, knot_cut_short: bool, memory=None
-) -> float:
+def drift_prior(p: TrackerParams, noisy: bool, since_knot: int, knot_cut_short: bool, memory=None):
     """How far one window may move the drift estimate (std, cycles per step): looser on a clean
     detector, stiff on a noisy one; there looser again within ``quiet_after`` readings of a knot
     taken, and stiffer still while no knot was taken for as long and the knot tests run to their
     end (a quiet drift is only known where a knot would have been seen). A drift ``memory``
-    (:meth:`Lock.remembered`) gives its own."""
-    if memory is not None:
-        return memory.prior
+    (:meth:`Lock.remembered`) gives its own, per stage (N,)."""
+    base = _own_drift_prior(p, noisy, since_knot, knot_cut_short)
+    return base if memory is None else memory.priors(base)
+
+
+def _own_drift_prior(p: TrackerParams, noisy: bool, since_knot: int, knot_cut_short: bool):
     if not noisy:
         return p.drift_prior_cycles
     if since_knot < p.quiet_after and p.knotted_drift_prior_cycles:
@@ -260,124 +262,3 @@ def largest_gap(age: np.ndarray) -> float:
     """The most steps between two consecutive readings of a window."""
     ages = age.tolist()
     return max([0.0, *(a - b for a, b in itertools.pairwise(ages))])
-
-
-#: Steps between two fits taken (per ``fit_every``) beyond which the estimates before are
-#: forgotten (a re-lock, an outage: the estimate may have moved by more than the drift).
-MEMORY_MAX_GAP = 5
-#: After a turn, the fastest drift believed until the memory holds a slope again, in times the
-#: fastest stage's slope let go of (a drift that turns does not run off to many times its speed;
-#: a knot fit at the turn, its drift told by a few readings, can).
-TURN_SPEED = 2.0
-
-
-class DriftMemory:
-    """The drift as the slope of the estimates taken over a long span (``span`` steps), the
-    drift prior's mean under a told vibration.
-
-    One window's fit moves its drift by what its few readings say, and under a vibration they
-    say mostly the walk and the vibration's slow part: the drift estimate wanders by tens of
-    percent within seconds, and the estimate follows it off. The estimates taken over a minute
-    tell the drift to a few percent (the walk's sigma over the root of the steps). Once ``least``
-    steps are held, the slope is fitted (least squares) and given as the drift to carry on with;
-    the fits take it as their prior's mean with std ``prior``. Released (forgotten) when the
-    last ``window`` steps' estimates leave the slope by ``turn`` cycles: one stage by that much,
-    or all stages together along the reversal of the drift (a drift that turns everywhere at
-    once: a common thermal cause). The fits' own drift goes on then, from the slope of that
-    window's estimates, and the memory fills again; with ``after`` > 0 under a drift prior of
-    that std and no faster than TURN_SPEED times the fastest stage's slope let go of, until
-    the memory holds ``least`` steps again."""
-
-    def __init__(
-        self,
-        span: int,
-        least: int,
-        window: int,
-        prior: float,
-        turn: float,
-        after: float = 0.0,
-        max_gap: int = MEMORY_MAX_GAP,
-    ) -> None:
-        self.span, self.least, self.window = int(span), int(least), int(window)
-        self.max_gap = int(max_gap)
-        self.tight, self.turn, self.after = float(prior), float(turn), float(after)
-        self.turns = 0  # releases for a turn of the drift
-        self.reset()
-
-    def reset(self) -> None:
-        self.steps: deque = deque()
-        self.xs: deque = deque()
-        self.slope: np.ndarray | None = None
-        self.limit: float | None = None  # after a turn: the fastest drift believed
-
-    @property
-    def prior(self) -> float:
-        """The drift prior's std: ``after`` while a turn's limit holds, else the tight one."""
-        return self.tight if self.limit is None else self.after
-
-    def take(self, step: int, x: np.ndarray, drift: np.ndarray) -> np.ndarray:
-        """Hold the estimate ``x`` taken at ``step``; the drift to carry on with (the slope,
-        or the fit's own ``drift`` while there is none, after a turn within ``limit``)."""
-        steps, xs = self.steps, self.xs
-        if steps and step - steps[-1] > self.max_gap:
-            self.reset()
-            steps, xs = self.steps, self.xs
-        steps.append(step)
-        xs.append(np.array(x, dtype=np.float64))
-        while step - steps[0] > self.span:
-            steps.popleft()
-            xs.popleft()
-        if step - steps[0] < self.least:
-            self.slope = None
-            return drift if self.limit is None else np.clip(drift, -self.limit, self.limit)
-        t = np.array(steps, dtype=np.float64)
-        big_x = np.array(xs)
-        slope = _slope(t, big_x)
-        self.limit = None
-        if self._turned(t, big_x, slope):
-            # the drift turned: the fits' own drift again, from the last window's slope, and
-            # (``after`` > 0) under a prior of ``after`` and no faster than TURN_SPEED times
-            # the fastest stage's slope let go of
-            self.turns += 1
-            self.reset()
-            k = min(self.window, t.size)
-            carried = _slope(t[-k:], big_x[-k:])
-            if self.after > 0.0:
-                self.limit = TURN_SPEED * float(np.max(np.abs(slope)))
-                carried = np.clip(carried, -self.limit, self.limit)
-            return carried
-        self.slope = slope
-        return slope
-
-    def _turned(self, t: np.ndarray, big_x: np.ndarray, slope: np.ndarray) -> bool:
-        """Whether the last ``window`` steps' estimates left the line of ``slope``: one stage
-        by ``turn`` cycles, or all along the drift's reversal (-slope) by as much."""
-        k = min(self.window, t.size) - 1
-        off = big_x[-1] - big_x[-1 - k] - (t[-1] - t[-1 - k]) * slope
-        if float(np.max(np.abs(off))) > self.turn:
-            return True
-        size = float(np.linalg.norm(slope))
-        return size > 0.0 and -float(off @ slope) / size > self.turn
-
-
-def _slope(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The least-squares slope (N,) of estimates ``x`` (K, N) taken at steps ``t`` (K,)."""
-    tc = t - t.mean()
-    return tc @ (x - x.mean(axis=0)) / float(tc @ tc)
-
-
-def drift_memory(p: TrackerParams, config, vibration) -> DriftMemory | None:
-    """The lock's :class:`DriftMemory` under a told ``vibration`` with ``vibration_memory_s``
-    set (its times in the loop's steps of ``config.step_s``); None otherwise."""
-    if vibration is None or p.vibration_memory_s <= 0.0:
-        return None
-    step_s = float(getattr(config, "step_s", 0.1))
-    if p.window * step_s < p.vibration_memory_min_window_s:
-        return None  # (a window this short follows the vibration's slow part as drift)
-    scale = float(getattr(config, "time_scale", 1.0))
-    span = max(round(p.vibration_memory_s / step_s), 2 * p.window)
-    prior = p.vibration_memory_prior_cycles * scale
-    after = p.noisy_drift_prior_cycles  # (under a told vibration: vibration_drift_prior_cycles)
-    least = max(span // 6, p.window)
-    gap = MEMORY_MAX_GAP * p.fit_every  # (fit_every: the fits taken are that much further apart)
-    return DriftMemory(span, least, p.window, prior, p.vibration_turn_cycles, after, gap)
