@@ -16,9 +16,18 @@ reading's least time is kept, so a moment's interruption falls out. The 1-minute
 at the start and at the end is printed and written beside the figures; ``--busy N`` runs N
 busy-looping processes beside the measurement.
 
+``--vibration lab`` (or ``open``) runs the ``lab`` rig in physical time at ``--rate`` Hz under
+that vibration instead of the ideal rig, as ``rate-sweep`` and ``soak`` do (latency and the
+lines' response 1 ms): the tracker then takes its vibration settings and, from a sixth of
+``vibration_memory_s`` on (20 s), its drift memory, so give ``--steps`` enough readings for
+that (6,000 at 100 Hz is a minute). Its section is one of its own, named by the vibration and
+the rate.
+
 Usage (after `source setup.bash`):
   ops-bench controller-speed [--stages 3 5 7] [--mode hard] [--steps 300] [--seeds 1 2]
       [--repeats 3] [--controllers tracker spgd models] [--busy 0] [--write]
+  ops-bench controller-speed --stages 5 --controllers tracker --vibration lab --rate 100 \
+      --steps 6000 --repeats 2 --write
 """
 
 from __future__ import annotations
@@ -31,7 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from ops_contract.config import MODES
+from ops_contract.config import MODES, VIBRATIONS
 
 from ops_bench import REPO
 from ops_bench.docs import publish
@@ -65,15 +74,24 @@ def model_dirs(stage: int) -> list[Path]:
     return out
 
 
-def run_once(name: str, stage: int, mode: str, steps: int, seed: int, stack=None) -> tuple:
-    """Per-reading compute (ms) of one run, and its readings' P_N/P_max."""
+def config_for(stage: int, args, stack=None):
+    """The run's configuration: the ideal rig (the model's detector), or with a vibration the
+    ``lab`` rig in physical time at ``args.rate``."""
     from ops_contract.config import make_config
+    from ops_experiments.timed_loop import timed_config
+
+    if args.vibration != "none":
+        return timed_config(args.rate, stage=stage, mode=args.mode, vibration=args.vibration)
+    detector = "polarizer" if stack is None else (stack.meta.detector or "polarizer")
+    return make_config(stage=stage, mode=args.mode, split="test", detector=detector)
+
+
+def run_once(name: str, config, steps: int, seed: int, stack=None) -> tuple:
+    """Per-reading compute (ms) of one run, and its readings' P_N/P_max."""
     from ops_controller_ros.controllers import next_command
     from ops_experiments.timed_loop import make_agent
     from ops_sim_ros.env import OpsEnv
 
-    detector = "polarizer" if stack is None else (stack.meta.detector or "polarizer")
-    config = make_config(stage=stage, mode=mode, split="test", detector=detector)
     env = OpsEnv.from_config(config, max_episode_steps=steps + 1)
     _, info = env.reset(seed=1000 * seed)
     ctl, _ = make_agent(name, config, seed, info["setpoints_fs"], model=stack)
@@ -101,9 +119,8 @@ def measure(name: str, stage: int, args, stack=None) -> dict:
     """One table row: each reading's least compute over the repeats, all seeds pooled."""
     per_seed, locked = [], []
     for seed in args.seeds:
-        runs = [
-            run_once(name, stage, args.mode, args.steps, seed, stack) for _ in range(args.repeats)
-        ]
+        config = config_for(stage, args, stack)
+        runs = [run_once(name, config, args.steps, seed, stack) for _ in range(args.repeats)]
         per_seed.append(np.min([ms for ms, _ in runs], axis=0))
         locked.append(np.mean(runs[0][1][args.steps // 2 :] >= 0.95))
     ms = np.concatenate(per_seed)
@@ -164,10 +181,19 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--repeats", type=int, default=3, help="runs per seed; least time per reading")
     ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
     ap.add_argument("--busy", type=int, default=0, help="busy processes beside the measurement")
+    ap.add_argument(
+        "--vibration",
+        choices=VIBRATIONS,
+        default="none",
+        help="none: the ideal rig; else the lab rig in physical time at --rate under it",
+    )
+    ap.add_argument("--rate", type=float, default=10.0, help="loop rate with a vibration, Hz")
     ap.add_argument("--write", action="store_true", help="write docs/benchmarks.md")
     args = ap.parse_args(argv)
     if args.steps < 1 or args.repeats < 1:
         ap.error("--steps and --repeats must be >= 1")
+    if not args.rate > 0.0:
+        ap.error("--rate must be > 0")
     return args
 
 
@@ -189,10 +215,15 @@ def main(argv=None) -> int:
     load_end = os.getloadavg()[0]
     command = "ops-bench controller-speed " + " ".join(sys.argv[1:])
     title = TITLE + (f", {args.busy} busy processes beside it" if args.busy else "")
+    rig = "the ideal rig"
+    if args.vibration != "none":
+        title += f", the {args.vibration} vibration at {args.rate:g} Hz"
+        rig = f"the lab rig in physical time at {args.rate:g} Hz, {args.vibration} vibration"
+
     lines = [
         title,
         "",
-        f"Command: `{command.strip()}` ({args.mode} mode, testing split, the ideal rig; "
+        f"Command: `{command.strip()}` ({args.mode} mode, testing split, {rig}; "
         f"{args.steps} readings per run, seeds {' '.join(map(str, args.seeds))}, each run "
         f"{args.repeats} time(s) and each reading's least time kept; BLAS and torch on one thread; "
         f"{os.cpu_count()} cores, {args.busy} busy processes beside it, 1-minute load "

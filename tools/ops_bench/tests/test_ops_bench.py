@@ -200,3 +200,24 @@ def test_first_run_refuses_bad_options(argv, capsys):
         parse_args(argv)
     assert done.value.code == 2
     assert ("--controller" if "--controller" in argv else "--seeds") in capsys.readouterr().err
+
+
+def test_controller_speed_under_a_vibration_runs_the_lab_rig_in_physical_time(capsys):
+    from ops_bench.controller_speed import config_for, main, parse_args
+
+    config = config_for(5, parse_args(["--vibration", "lab", "--rate", "100"]))
+    assert (config.time_base, config.vibration, config.step_s) == ("seconds", "lab", 0.01)
+    assert config_for(5, parse_args([])).time_base == "step"
+    argv = ["--stages", "3", "--controllers", "tracker", "--vibration", "lab", "--rate", "100"]
+    assert main([*argv, "--steps", "20", "--seeds", "1", "--repeats", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "## Compute per reading, by controller, the lab vibration at 100 Hz" in out
+    assert "| tracker | 3 |" in out
+
+
+def test_controller_speed_refuses_a_rate_of_nothing(capsys):
+    from ops_bench.controller_speed import parse_args
+
+    with pytest.raises(SystemExit) as stop:
+        parse_args(["--vibration", "lab", "--rate", "0"])
+    assert stop.value.code == 2 and "--rate" in capsys.readouterr().err
