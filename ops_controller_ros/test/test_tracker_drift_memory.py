@@ -170,3 +170,33 @@ def test_the_bent_line_finds_the_slope_after_the_turn():
     bend = 28.0
     x = np.where((t < bend)[:, None], np.outer(t - bend, before), np.outer(t - bend, after))
     assert np.allclose(bent_line_slope(t, x, before, 20), after)
+
+
+def test_a_knot_taken_lets_go_of_every_stage_on_the_knots_drift():
+    """A knot fit found the drift's slope changed: a held slope carried on past it would undo
+    the knot's drift and leave its path behind (on the `lab` rig, the deepest dips at a turn)."""
+    from ops_controller_ros.tracker.tracking import Lock
+
+    rng = np.random.default_rng(5)
+    drift = np.full(5, 0.001)
+    lock = Lock(5, memory=_memory())
+    x = _filled(lock.memory, rng, drift)
+    lock.estimate = x
+    knot = np.array([-0.001, -0.0012, 0.0, -0.01, -0.0009])  # one far too fast
+    lock.drift = knot.copy()
+    lock.let_go()
+    memory = lock.memory
+    assert memory.knots == 1 and memory.turns == 0 and not memory.held.any()
+    limit = memory.limit[0]
+    assert limit == pytest.approx(2.0 * 0.001, rel=0.1)
+    assert np.array_equal(lock.drift, np.clip(knot, -limit, limit))
+    assert np.array_equal(memory.priors(7e-4), np.full(5, AFTER))
+    # the fits' own drift (within the limit) until the memory fills again
+    assert np.array_equal(memory.take(600, x - drift, -drift), -drift)
+    assert lock.remembered() is memory
+
+
+def test_a_knot_without_a_held_slope_changes_nothing():
+    memory = _memory()
+    assert np.array_equal(memory.knotted(np.full(5, 0.3)), np.full(5, 0.3))
+    assert memory.knots == 0

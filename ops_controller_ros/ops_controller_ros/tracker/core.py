@@ -258,8 +258,7 @@ class PhaseTracker:
         tracker acquires again, from the nominal detector."""
         if not self.guard.false_lock(self.params, self.lock, power):
             return
-        self.lock.estimate = None
-        self.lock.bad_fits = 0
+        self.lock.estimate, self.lock.bad_fits = None, 0
         self.search.job = None
         self.calibration.reset_detector()
 
@@ -278,8 +277,7 @@ class PhaseTracker:
         self.lock.lose()
         self.lock.bad_fits = 0
         self.search.job = None
-        self.knot.job = None  # a deferred knot test of the old pairing: nothing left to test
-        self.knot.run = None
+        self.knot.job = self.knot.run = None  # (a test of the old pairing: nothing left to test)
         self.loop.revise = False
         self.window.clear()
 
@@ -563,8 +561,9 @@ class PhaseTracker:
         choice = knots.choose(fits, (x, drift, cost), lock.fit_state(), penalty)
         lock.path, lock.objective, lock.ratio = choice.path, choice.objective, choice.ratio
         lock.gain_step, lock.level_step = choice.line
-        if choice.won:
+        if choice.won:  # (the drift memory lets go: the fit's drift is the knot's)
             self.knot.won(self.loop.tick)
+            lock.let_go()
         return choice.best
 
     def _advance_knot_run(self, deadline, rows=None) -> None:
@@ -595,6 +594,7 @@ class PhaseTracker:
             return
         lock.path, lock.objective, lock.ratio = retry.path[1], retry.objective[1], retry.ratio[1]
         lock.estimate, lock.drift = retry.x[1], bounded(self.params, retry.drift[1])
+        lock.let_go()
         lock.keep_taken(self.loop.step - age.astype(np.int64))
         self.calibration.take_fitted_line(float(retry.gain[1]), float(retry.level[1]))
         self.knot.won(tick)

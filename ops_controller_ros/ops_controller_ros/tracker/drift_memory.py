@@ -66,6 +66,7 @@ class DriftMemory:
         self.tight, self.turn, self.after = float(prior), float(turn), float(after)
         self.turns = 0  # releases of every stage (the whole drift reversed)
         self.stage_turns = 0  # releases of one stage
+        self.knots = 0  # releases of every stage at a knot taken
         self._cap = self.span + 2
         self._t = np.zeros(self._cap, dtype=np.int64)
         self._x: np.ndarray | None = None  # (cap, N) once the first estimate is taken
@@ -119,6 +120,22 @@ class DriftMemory:
             self._release(single, step, TURN_SPEED * float(np.max(np.abs(slope[filled]))))
         carried = np.where(self.held, slope, self._within(drift))
         return np.where(single, slope, carried)  # (a stage let go: on from its slope)
+
+    def knotted(self, drift: np.ndarray) -> np.ndarray:
+        """A knot taken (the fits found the drift's slope changed): let go of every stage held,
+        on with the knot fit's ``drift`` within TURN_SPEED times the fastest slope let go of (a
+        held slope carried on past a knot undoes the knot's drift and leaves its path behind)."""
+        if not self.active or self.held is None or not self.held.any():
+            return self._within(drift)
+        self.knots += 1
+        limit = TURN_SPEED * float(np.max(np.abs(self.slope[self.held])))
+        n = self.held.size
+        self.reset()
+        self.held = np.zeros(n, dtype=bool)
+        if self.after <= 0.0:
+            return drift
+        self.limit = np.full(n, limit)
+        return np.clip(drift, -limit, limit)
 
     # --- the releases -------------------------------------------------------------------------
 

@@ -107,6 +107,12 @@ class Lock:
             return drift
         return self.memory.take(step, self.estimate, drift)
 
+    def let_go(self) -> None:
+        """A knot taken: the drift memory lets go, on with the knot's drift
+        (:meth:`DriftMemory.knotted`)."""
+        if self.memory is not None:
+            self.drift = self.memory.knotted(self.drift)
+
     def remembered(self) -> DriftMemory | None:
         """The drift memory, where it gives the drift prior now (not while recovering)."""
         memory = self.memory
