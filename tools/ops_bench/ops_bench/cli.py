@@ -60,6 +60,7 @@ TOOLS: dict[str, Tool] = {
     "spgd-baseline": Tool("spgd_baseline", "SPGD-PID's episodes: figure and parameter sweep"),
     "rate-sweep": Tool("rate_sweep", "controllers at loop rates 10 Hz-1 kHz under lab vibration"),
     "soak": Tool("soak", "the tracker for hours of simulated time on the lab rig (checkpointed)"),
+    "soak-steps": Tool("soak_steps", "the soak's loop, every step logged: where locks were lost"),
     "figures": Tool("", "figures of the docs: ops-bench figures KIND, KIND one of"),
     "ship-model": Tool("ship_model", "ship a trained run as a model folder with its curve"),
     "reference-actions": Tool("reference_actions", "store a shipped model's reference actions"),
