@@ -2,12 +2,13 @@
 
 The package: :mod:`.params` (the parameters, declared once), :mod:`.fit` (the fits as pure
 functions), :mod:`.model` (the rig as the fits see it), and the state, each part with the module
-that changes it: :mod:`.commands` (set-points, excursions, commands in flight), :mod:`.window`
-(the readings), :mod:`.tracking` (the estimate, the priors of its fits, the false-lock rule),
-:mod:`.noise` (the detector's noise), :mod:`.vibration` (the delay lines' vibration as the fits
-see it), :mod:`.acquisition` (the global search), :mod:`.knots` (the knot test), :mod:`.period`
-(whole-cycle moves, period correction) and :mod:`.latency_check`;
-:mod:`.core` holds :class:`PhaseTracker`, the thin facade that runs a reading through them.
+that changes it: :mod:`.commands` (set-points, excursions, commands in flight), :mod:`.window` (the
+readings), :mod:`.tracking` (the estimate, the priors of its fits, the false-lock rule),
+:mod:`.drift_memory` (the drift remembered under a told vibration), :mod:`.noise` (the detector's
+noise), :mod:`.vibration` (the delay lines' vibration as the fits see it), :mod:`.acquisition` (the
+global search), :mod:`.knots` (the knot test), :mod:`.period` (whole-cycle moves, period correction)
+and :mod:`.latency_check`; :mod:`.core` holds :class:`PhaseTracker`, the thin facade that runs a
+reading through them.
 
 The controller knows the stacker's physics (:class:`ops_sim_ros.physics.PulseStacker` built from
 the *nominal* configuration: stage, wavelength, pulse width, detector) and estimates the hidden
@@ -74,11 +75,11 @@ the excursion. Under a told vibration the fits also take the ``vibration_*`` set
 (``vibration_arrival_cycles``: the fit remembers more than its window), a smaller excursion on a
 noisy detector (``vibration_dither_factor``), a knot test asked for only by a path step of
 ``vibration_knot_walk_sigmas`` (a stiff walk's few sigmas are the vibration's, not a knot) and a
-drift remembered over ``vibration_memory_s``: each stage's slope of the estimates taken, the
-drift prior's mean (std ``vibration_memory_prior_cycles``), a stage let go of alone where its
-estimates leave its line by ``vibration_turn_cycles`` and every stage where the whole drift
-reverses; then the fits' own drift under ``vibration_drift_prior_cycles``, no faster than twice
-the slope let go of, until it fills again (:mod:`.drift_memory`).
+drift remembered over ``vibration_memory_s``: each stage's slope of the estimates taken, the drift
+prior's mean (std ``vibration_memory_prior_cycles``), a stage let go of alone where its estimates
+leave its line by ``vibration_turn_cycles``, every stage where the whole drift reverses or a knot is
+taken; then the fits' own drift under ``vibration_drift_prior_cycles``, no faster than twice the
+slope let go of, until it fills again (:mod:`.drift_memory`).
 
 Detector noise: the first two readings of an acquisition are taken at the same set-points; their
 difference measures the noise variance, which widens the residual tolerance and the tracking
