@@ -125,17 +125,10 @@ class DriftMemory:
         """A knot taken (the fits found the drift's slope changed): let go of every stage held,
         on with the knot fit's ``drift`` within TURN_SPEED times the fastest slope let go of (a
         held slope carried on past a knot undoes the knot's drift and leaves its path behind)."""
-        if not self.active or self.held is None or not self.held.any():
+        if self.held is None or not self.held.any():
             return self._within(drift)
         self.knots += 1
-        limit = TURN_SPEED * float(np.max(np.abs(self.slope[self.held])))
-        n = self.held.size
-        self.reset()
-        self.held = np.zeros(n, dtype=bool)
-        if self.after <= 0.0:
-            return drift
-        self.limit = np.full(n, limit)
-        return np.clip(drift, -limit, limit)
+        return self._let_go_all(drift, self.slope, self.held)
 
     # --- the releases -------------------------------------------------------------------------
 
@@ -179,13 +172,18 @@ class DriftMemory:
         """Let go of every stage at a reversal; the drift ``after`` it carried on (module
         docstring), with ``after`` > 0 no faster than TURN_SPEED times the fastest slope."""
         self.turns += 1
-        limit = TURN_SPEED * float(np.max(np.abs(slope[filled])))
+        return self._let_go_all(after, slope, filled)
+
+    def _let_go_all(self, carried: np.ndarray, slope: np.ndarray, held: np.ndarray):
+        """Forget every estimate; ``carried`` (N,) goes on, with ``after`` > 0 no faster than
+        TURN_SPEED times the fastest of the ``held`` stages' ``slope`` until the memory fills."""
+        limit = TURN_SPEED * float(np.max(np.abs(slope[held])))
         self.reset()
         self.held = np.zeros(slope.size, dtype=bool)
         if self.after <= 0.0:
-            return after
+            return carried
         self.limit = np.full(slope.size, limit)
-        return np.clip(after, -limit, limit)
+        return np.clip(carried, -limit, limit)
 
     def _within(self, drift: np.ndarray) -> np.ndarray:
         return drift if self.limit is None else np.clip(drift, -self.limit, self.limit)

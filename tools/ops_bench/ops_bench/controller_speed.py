@@ -118,8 +118,8 @@ def run_once(name: str, config, steps: int, seed: int, stack=None) -> tuple:
 def measure(name: str, stage: int, args, stack=None) -> dict:
     """One table row: each reading's least compute over the repeats, all seeds pooled."""
     per_seed, locked = [], []
+    config = config_for(stage, args, stack)
     for seed in args.seeds:
-        config = config_for(stage, args, stack)
         runs = [run_once(name, config, args.steps, seed, stack) for _ in range(args.repeats)]
         per_seed.append(np.min([ms for ms, _ in runs], axis=0))
         locked.append(np.mean(runs[0][1][args.steps // 2 :] >= 0.95))

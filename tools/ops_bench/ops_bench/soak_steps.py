@@ -23,10 +23,8 @@ from pathlib import Path
 
 import numpy as np
 from ops_contract.config import VIBRATIONS
+from ops_experiments.continuous import LOCK, LOSS
 
-#: P_N/P_max below which a reading is low, and below which a run of readings is a lock lost
-#: (as ``soak``: ops_experiments.continuous).
-LOCKED, LOST = 0.95, 0.8
 #: Readings after a drift turn within which a lock lost or a release counts as the turn's.
 AFTER_TURN = 40
 
@@ -48,20 +46,16 @@ def run_logged(args) -> dict[str, np.ndarray]:
     """Every step of the soak's loop for ``args.hours``."""
     from tqdm import tqdm
 
-    from .soak import new_state
+    from .soak import build_parser as soak_parser
+    from .soak import new_state, settings_of
 
-    settings = {
-        "controller": "tracker",
-        "rate_hz": float(args.rate),
-        "seed": int(args.seed),
-        "mode": "hard",
-        "vibration": args.vibration,
-        "latency_ms": 1.0,
-        "lag_ms": 1.0,
-        "compute_ms": float(args.compute_ms),
-        "compute_scale": 1.0,
-        "block_s": 60.0,
-    }
+    # soak's settings with its defaults (the tracker, N = 5 hard, the lab rig's 1 ms): the same
+    # loop, step for step
+    soak_args = soak_parser().parse_args(
+        ["--rate", str(args.rate), "--seed", str(args.seed), "--vibration", args.vibration,
+         "--compute-ms", str(args.compute_ms)]
+    )  # fmt: skip
+    settings = settings_of(soak_args)
     loop = new_state(settings)["loop"]
     sim, ctl = loop.sim, loop.ctl
     period = float(sim.config.optical_period_fs)
@@ -95,10 +89,10 @@ def run_logged(args) -> dict[str, np.ndarray]:
 def account(log: dict[str, np.ndarray], rate_hz: float) -> dict:
     """Where the run's locks were lost and what the memory let go of (module docstring)."""
     power = np.asarray(log["power"], dtype=np.float64)
-    hits = np.flatnonzero(power >= LOCKED)
+    hits = np.flatnonzero(power >= LOCK)
     first = int(hits[0]) if hits.size else power.size
     low = np.zeros(power.size + 1, dtype=np.int8)
-    low[first:-1] = power[first:] < LOST
+    low[first:-1] = power[first:] < LOSS
     starts = np.flatnonzero(np.diff(np.concatenate([[0], low])) == 1)
     turns = drift_turns(np.asarray(log["true_drift"]))
     released = np.flatnonzero(np.diff(np.concatenate([[0], log["releases_all"]])) > 0)
@@ -122,7 +116,7 @@ def account(log: dict[str, np.ndarray], rate_hz: float) -> dict:
     return {
         "hours": round(power.size / rate_hz / 3600.0, 4),
         "readings_after_first_lock": int(after.size),
-        "readings_locked_pct": round(100.0 * float(np.mean(after >= LOCKED)), 4)
+        "readings_locked_pct": round(100.0 * float(np.mean(after >= LOCK)), 4)
         if after.size
         else None,
         "drift_turns": int(turns.size),
