@@ -122,6 +122,7 @@ LONGEST_MODULES = (
     "test_recipes.py",  # ~25
     "test_two_hosts.py",  # 24
     "test_hostile.py",  # 20
+    "test_realtime_over_dds.py",  # ~20
     "test_rig_calibration.py",  # 19
     "test_latency_check.py",  # 15
     "test_tracker_first_lock.py",  # 15

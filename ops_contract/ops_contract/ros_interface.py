@@ -280,12 +280,15 @@ def _stop_requested(signum, frame) -> None:
     """Ctrl-C / SIGTERM: nothing to do here; rclpy's handler has shut the context down."""
 
 
-def run_node(make_node: Callable[[], Node], args=None, executor: str | None = None) -> int:
+def run_node(
+    make_node: Callable[[], Node], args=None, executor: str | None = None, loops: bool = False
+) -> int:
     """The ``main()`` of every node: init, spin, clean exit on Ctrl-C / SIGTERM.
 
     ``executor``: the node's default for its ``executor`` parameter (declared here, after the
     node is built: ``default`` or ``events``, :mod:`~ops_contract.executors`); None: the node
-    has no such parameter and rclpy's default executor spins it.
+    has no such parameter and rclpy's default executor spins it. A node with an ``executor``
+    parameter, or ``loops``, has a ``realtime_priority`` (:mod:`~ops_contract.realtime`).
 
     A :class:`ParameterError` raised while building the node stops it before it spins, with the
     message on stderr and exit code 2; a :class:`NodeFatalError` raised while spinning stops it
@@ -310,7 +313,7 @@ def run_node(make_node: Callable[[], Node], args=None, executor: str | None = No
     code = 0
     try:
         node = make_node()
-        spinner = _executor_of(node, executor)
+        spinner = _executor_of(node, executor, loops or executor is not None)
         with contextlib.suppress(KeyboardInterrupt, ExternalShutdownException):
             spin(spinner, node)
         raise_fatal(node)  # (a callback's, which shut the context down: executors.guarded)
@@ -334,13 +337,35 @@ def run_node(make_node: Callable[[], Node], args=None, executor: str | None = No
     return code
 
 
-def _executor_of(node: Node, default: str | None):
+def _executor_of(node: Node, default: str | None, loops: bool):
     """The executor the node's ``executor`` parameter names (declared with ``default``; None:
-    no parameter, the default executor)."""
+    no parameter, the default executor). A node that ``loops`` has a ``realtime_priority``
+    too (:mod:`~ops_contract.realtime`), applied to its threads here."""
     from .executors import executor_spec, make_executor
     from .node_params import declare_all
+    from .realtime import REALTIME_PRIORITY_SPEC
 
-    name = "default"
-    if default is not None:
-        name = declare_all(node, [executor_spec(default)])["executor"]
-    return make_executor(name, node.context)
+    specs = ([executor_spec(default)] if default is not None else []) + (
+        [REALTIME_PRIORITY_SPEC] if loops else []
+    )
+    values = declare_all(node, specs) if specs else {}
+    executor = make_executor(values.get("executor", "default"), node.context)
+    _take_priority(node, values.get("realtime_priority", 0))
+    return executor
+
+
+def _take_priority(node: Node, priority: int) -> None:
+    """Every thread of the node's process under SCHED_FIFO at ``priority`` (0: left as it is),
+    or a warning that says why not and how to allow it."""
+    from .realtime import set_priority
+
+    if priority == 0:
+        return
+    refused = set_priority(priority)
+    if refused is None:
+        node.get_logger().info(f"realtime_priority {priority}: every thread under SCHED_FIFO")
+    else:
+        node.get_logger().warning(
+            f"realtime_priority {priority} not taken, the node runs under the normal "
+            f"scheduler: {refused}"
+        )

@@ -295,7 +295,7 @@ class RigNode(Node):
 
 
 def main(args=None):
-    raise SystemExit(run_node(RigNode, args))
+    raise SystemExit(run_node(RigNode, args, loops=True))
 
 
 if __name__ == "__main__":

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -44,6 +43,7 @@ from ops_contract.config import MODES, VIBRATIONS
 
 from ops_bench import REPO
 from ops_bench.docs import publish
+from ops_bench.processes import busy_processes
 
 TITLE = "## Compute per reading, by controller"
 CONTROLLERS = ("tracker", "spgd", "models")
@@ -204,14 +204,9 @@ def main(argv=None) -> int:
     limit_blas_threads()
     if "models" in args.controllers:
         limit_torch_threads()
-    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
-    load_start = os.getloadavg()[0]
-    try:
+    with busy_processes(args.busy):
+        load_start = os.getloadavg()[0]
         rows = rows_for(args)
-    finally:
-        for proc in busy:
-            proc.kill()
-            proc.wait()
     load_end = os.getloadavg()[0]
     command = "ops-bench controller-speed " + " ".join(sys.argv[1:])
     title = TITLE + (f", {args.busy} busy processes beside it" if args.busy else "")

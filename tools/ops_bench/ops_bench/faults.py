@@ -32,7 +32,6 @@ import contextlib
 import platform
 import re
 import shlex
-import subprocess
 import sys
 import tempfile
 import time
@@ -41,7 +40,13 @@ from pathlib import Path
 from ops_bench import REPO
 from ops_bench.docs import write_section
 from ops_bench.hosts import RelayedHosts, netns_unavailable_reason
-from ops_bench.processes import ProcessGroup, executable, ros2_command, sim_command
+from ops_bench.processes import (
+    ProcessGroup,
+    busy_processes,
+    executable,
+    ros2_command,
+    sim_command,
+)
 
 SECTION = "## Faults"
 THRESHOLD = 0.95
@@ -182,7 +187,7 @@ class Schedule:
 
     def phase(self, label, loss=0.0, down_s=0.0, load=0, flood=0.0, viewers=False) -> None:
         args, hosts = self.args, self.hosts
-        busy, extra = [], []
+        extra = []
         if down_s:
             hosts.set(down=True)
             time.sleep(down_s)
@@ -196,12 +201,8 @@ class Schedule:
             extra.append(self.start(cmd, "flood"))
             time.sleep(1.0)  # its discovery
         t0 = time.time()
-        for _ in range(load):
-            busy.append(subprocess.Popen([sys.executable, "-c", "while True: pass"]))
-        time.sleep(args.phase_s)
-        for b in busy:
-            b.kill()
-            b.wait()
+        with busy_processes(load):
+            time.sleep(args.phase_s)
         rows = readings(self.rec, t0, time.time())
         row = {"fraction": lock_fraction(rows), "readings": len(rows)}
         row["steps_per_s"] = len(rows) / max(time.time() - t0, 1e-9)

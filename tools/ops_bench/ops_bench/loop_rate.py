@@ -23,10 +23,16 @@ the readings after the first lock are >= 0.95. A controller's sweep stops after 
 rates in a row not held. Prints a table and, unless --no-write, rewrites the section of
 docs/benchmarks.md with the command and the machine's load (``uptime``) at start and end.
 
-Usage (after `source setup.bash`; on a shared machine at a lower priority, as measured):
-  nice -n 5 ops-bench loop-rate [--controllers spgd tracker policy] [--executors default events]
+Usage (after `source setup.bash`):
+  ops-bench loop-rate [--controllers spgd tracker policy] [--executors default events]
       [--rates 100 200 300 500 700 1000 1500 2000] [--seconds 10] [--model models/n5_hard_switch]
-      [--time-base seconds [--vibration lab]]
+      [--time-base seconds [--vibration lab]] [--realtime-priority 50] [--busy 2]
+
+``--realtime-priority P`` runs both nodes (and this process's subscriber) under ``SCHED_FIFO``
+at P (their ``realtime_priority`` parameter, ops_contract.realtime; refused with exit 2 where
+the machine does not allow it); ``--busy K`` runs K processes that keep a core busy each beside
+every rate's loop, as a lab computer that does other work: together they measure what the
+priority buys (docs/loop_rate.md, "Over DDS").
 
 Under ``--time-base seconds`` a step of the simulator lasts 1 / rate_hz s (docs/physics.md,
 "Physical time and vibration"): a faster loop meets less drift and walk per step, as on a
@@ -44,6 +50,7 @@ import time
 from pathlib import Path
 
 from ops_contract.config import TIME_BASES, VIBRATIONS
+from ops_contract.realtime import set_priority
 
 from ops_bench.closed_loop import (
     REPO,
@@ -56,6 +63,7 @@ from ops_bench.closed_loop import (
     stop_all,
 )
 from ops_bench.docs import publish
+from ops_bench.processes import busy_processes
 
 SECTION = "## Loop rate over DDS, by executor"
 CONTROLLERS = ("spgd", "tracker", "policy")
@@ -82,10 +90,11 @@ def commands(args, controller: str, executor: str, rate: float) -> tuple[list[st
         f"diagnostics_period_s:={DIAGNOSTICS_PERIOD_S}",
         f"time_base:={args.time_base}",
         f"vibration:={args.vibration}",
+        *realtime_params(args),
     ):
         sim += ["-p", p]
     ctl = ["ros2", "run", "ops_controller_ros", controller, "--ros-args"]
-    params = [f"seed:={args.seed}", f"executor:={executor}"]
+    params = [f"seed:={args.seed}", f"executor:={executor}", *realtime_params(args)]
     if controller == "tracker" and args.vibration != "none":
         # the tracker told the vibration and the loop's period (docs/interfaces.md)
         params += [f"vibration:={args.vibration}", f"step_s:={1.0 / rate:g}"]
@@ -95,6 +104,11 @@ def commands(args, controller: str, executor: str, rate: float) -> tuple[list[st
     for p in params:
         ctl += ["-p", p]
     return sim, ctl
+
+
+def realtime_params(args) -> list[str]:
+    """Both nodes' ``realtime_priority`` (ops_contract.realtime), where one is asked for."""
+    return [f"realtime_priority:={args.realtime_priority}"] if args.realtime_priority else []
 
 
 def sim_counts(msg) -> tuple[int, int] | None:
@@ -149,9 +163,10 @@ def measure_point(args, controller: str, executor: str, rate: float, logdir: Pat
     sim_cmd, ctl_cmd = commands(args, controller, executor, rate)
     tag = f"{controller}_{executor}_{rate:g}"
     ctl_log = logdir / f"ctl_{tag}.log"
-    procs = [start(sim_cmd, logdir / f"sim_{tag}.log")]
-    with power_node(f"bench_loop_rate_{os.getpid()}") as (node, power):
+    with busy_processes(args.busy), power_node(f"bench_loop_rate_{os.getpid()}") as (node, power):
         listener = Listener(node, power)
+        set_priority(args.realtime_priority)  # this process's threads, for the subscriber
+        procs = [start(sim_cmd, logdir / f"sim_{tag}.log")]
         try:
             if not listener.spin_until(lambda: len(power) >= 20, 60):
                 raise RuntimeError(f"no ops/power from the simulator (see {logdir})")
@@ -173,6 +188,7 @@ def measure_point(args, controller: str, executor: str, rate: float, logdir: Pat
         finally:
             listener.close()
             stop_all(procs)
+            set_priority(0)
     if len(diag) < 2:
         raise RuntimeError(f"fewer than 2 diagnostics of the simulator in the window ({logdir})")
     (ta, step_a, miss_a), (tb, step_b, miss_b) = diag[0], diag[-1]
@@ -255,11 +271,15 @@ def uptime() -> str:
 
 
 def section_title(args) -> str:
-    """The benchmarks.md section of these settings: the default's, or one per time base,
-    vibration and controller parameters (a run of other settings keeps the default's table)."""
-    told = [f"time_base {args.time_base}"] if args.time_base != "step" else []
+    """The benchmarks.md section of these settings: the default's, or one per set of
+    controllers (where not all of them), time base, vibration, controller parameters, priority
+    and load (a run of other settings keeps the others' tables)."""
+    told = [] if set(args.controllers) == set(CONTROLLERS) else [" ".join(args.controllers)]
+    told += [f"time_base {args.time_base}"] if args.time_base != "step" else []
     told += [f"vibration {args.vibration}"] if args.vibration != "none" else []
     told += args.param
+    told += [f"realtime_priority {args.realtime_priority}"] if args.realtime_priority else []
+    told += [f"{args.busy} busy processes"] if args.busy else []
     return SECTION + (f": {', '.join(told)}" if told else "")
 
 
@@ -334,9 +354,31 @@ def parse_args(argv=None) -> argparse.Namespace:
         metavar="NAME:=VALUE",
         help="a parameter of the controller node (repeat for more), e.g. answer_first:=true",
     )
+    ap.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=0,
+        metavar="P",
+        help="both nodes' realtime_priority (SCHED_FIFO, 1-98; 0: the normal scheduler); this "
+        "process's subscriber takes it too",
+    )
+    ap.add_argument(
+        "--busy", type=int, default=0, metavar="K", help="K busy processes beside each rate's loop"
+    )
     ap.add_argument("--out", help="also write the points to this JSON file")
     ap.add_argument("--no-write", action="store_true", help="print only")
     args = ap.parse_args(argv)
+    if args.busy < 0:
+        ap.error(f"--busy: a count >= 0 (got {args.busy})")
+    if args.realtime_priority:
+        from ops_contract.realtime import MAX_PRIORITY
+
+        if not 0 < args.realtime_priority <= MAX_PRIORITY:
+            ap.error(f"--realtime-priority: 0 to {MAX_PRIORITY} (got {args.realtime_priority})")
+        refused = set_priority(args.realtime_priority)  # allowed here, so to the nodes too
+        set_priority(0)  # (each rate's subscriber takes it once its threads are up)
+        if refused:
+            ap.error(f"--realtime-priority: {refused}")
     from ops_contract.executors import EXECUTORS
 
     args.executors = args.executors or list(EXECUTORS)

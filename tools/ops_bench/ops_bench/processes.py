@@ -22,6 +22,7 @@ __all__ = [
     "Process",
     "ProcessGroup",
     "assert_no_traceback",
+    "busy_processes",
     "descendants",
     "executable",
     "ros2_command",
@@ -218,3 +219,16 @@ def assert_no_traceback(text: str) -> None:
 
 
 PYTHON = sys.executable
+
+
+@contextlib.contextmanager
+def busy_processes(count: int):
+    """``count`` processes that keep a core busy each (at the normal priority) while the block
+    runs: a machine that does other work beside a loop."""
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        yield busy
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()

@@ -3,8 +3,10 @@ that ``ros2 run`` starts in a process group of its own included) and the setting
 
 from __future__ import annotations
 
+import os
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -73,8 +75,9 @@ def test_physical_time_and_controller_parameters_reach_the_nodes_and_their_own_s
     # the tracker told the vibration at the loop's period, and the parameter given
     assert {"vibration:=lab", "step_s:=0.002", "answer_first:=true"} <= set(ctl)
     title = section_title(args)
-    assert title == f"{SECTION}: time_base seconds, vibration lab, answer_first:=true"
-    assert section_title(parse_args(["--controllers", "spgd"])) == SECTION  # the default's
+    assert title == f"{SECTION}: tracker, time_base seconds, vibration lab, answer_first:=true"
+    assert section_title(parse_args([])) == SECTION  # the default's: every controller
+    assert section_title(parse_args(["--controllers", "spgd"])) == f"{SECTION}: spgd"
 
 
 def test_a_vibration_in_steps_is_refused(capsys):
@@ -82,3 +85,43 @@ def test_a_vibration_in_steps_is_refused(capsys):
         parse_args(["--controllers", "spgd", "--vibration", "lab"])
     assert stop_.value.code == 2
     assert "--time-base seconds" in capsys.readouterr().err
+
+
+def test_a_realtime_priority_reaches_both_nodes_and_its_own_section():
+    from ops_contract.realtime import set_priority
+
+    if set_priority(7) is not None:
+        pytest.skip("this machine does not allow SCHED_FIFO (parse_args refuses it: below)")
+    set_priority(0)
+    args = parse_args(["--controllers", "spgd", "--realtime-priority", "7", "--busy", "2"])
+    sim, ctl = commands(args, "spgd", "events", 1000.0)
+    assert "realtime_priority:=7" in sim and "realtime_priority:=7" in ctl
+    assert section_title(args) == f"{SECTION}: spgd, realtime_priority 7, 2 busy processes"
+    plain = commands(parse_args(["--controllers", "spgd"]), "spgd", "events", 1000.0)
+    assert not any("realtime_priority" in p for p in plain[0] + plain[1])
+
+
+@pytest.mark.parametrize(
+    "option, why", [(["--realtime-priority", "99"], "0 to 98"), (["--busy", "-1"], ">= 0")]
+)
+def test_bad_priorities_and_loads_exit_2(capsys, option, why):
+    with pytest.raises(SystemExit) as stop_:
+        parse_args(["--controllers", "spgd", *option])
+    assert stop_.value.code == 2
+    assert why in capsys.readouterr().err
+
+
+def test_busy_processes_keep_a_core_busy_and_are_gone_after():
+    from ops_bench.processes import busy_processes
+
+    def cpu_s(pid: int) -> float:  # utime + stime (/proc)
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    with busy_processes(2) as busy:
+        assert [p.poll() for p in busy] == [None, None]
+        deadline = time.monotonic() + 30.0
+        while cpu_s(busy[0].pid) < 0.2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert cpu_s(busy[0].pid) >= 0.2
+    assert all(p.poll() is not None for p in busy)
