@@ -73,10 +73,12 @@ def timed_config(
     vibration: str = "lab",
     latency_ms: float = 1.0,
     lag_ms: float = 1.0,
+    rig: dict | None = None,
 ):
     """The configuration of a loop at ``rate_hz`` in physical time: ``realism``'s rig with its
     latency (``latency_ms``, rounded to steps) and the delay lines' response time (``lag_ms``,
-    in steps, not rounded) given in ms, and ``vibration``."""
+    in steps, not rounded) given in ms, ``vibration``, and the rig's other figures changed by
+    ``rig`` (OpsConfig fields: ``trace_adc_bits``, ``actuator_hysteresis``, ...)."""
     step_s = 1.0 / float(rate_hz)
     latency = round(float(latency_ms) / 1000.0 / step_s)
     lag = float(lag_ms) / 1000.0 / step_s
@@ -91,6 +93,7 @@ def timed_config(
         vibration=vibration,
         latency_steps=latency,
         actuator_lag_steps=min(lag, high),
+        **(rig or {}),
     )
 
 

@@ -55,7 +55,14 @@ SETTING_KEYS = (
     "compute_ms",
     "compute_scale",
     "block_s",
+    "realism",
+    "rig",
 )
+#: What a run stored before a setting existed had of it (its resume compares these).
+SETTING_DEFAULTS = {"realism": "lab", "rig": {}}
+#: Figures of the rig that --rig does not take: the latency and response are --latency-ms and
+#: --lag-ms, the time base and vibration are the soak's own.
+RIG_NOT_TAKEN = ("latency_steps", "actuator_lag_steps", "time_base", "step_s", "vibration")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -77,6 +84,23 @@ def build_parser() -> argparse.ArgumentParser:
         help="the controller's compute per reading, fixed (default: measured per reading)",
     )
     p.add_argument("--compute-scale", type=float, default=1.0, help="measured compute times this")
+    p.add_argument(
+        "--realism",
+        default="lab",
+        choices=("lab", "ideal"),
+        help="the rig's preset that --rig changes (default lab; docs/physics.md, 'Rig "
+        "imperfections')",
+    )
+    p.add_argument(
+        "--rig",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="KEY=VALUE",
+        help="figures of the rig changed from the preset, which the tracker is told of too (e.g. "
+        "trace_adc_bits=12: what a finer scope buys; actuator_hysteresis=0): the rig's keys of "
+        "docs/physics.md but the latency and response (--latency-ms, --lag-ms)",
+    )
     p.add_argument("--block-s", type=float, default=60.0, help="simulated s per figure point")
     p.add_argument(
         "--checkpoint-every",
@@ -97,6 +121,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def rig_of(args) -> dict[str, Any]:
+    """The figures of ``--rig`` (ValueError naming a figure that is not the rig's, not taken
+    here, or out of its range)."""
+    from ops_experiments.cli_args import resolve_rig
+
+    rig = resolve_rig(None, args.rig)
+    taken = sorted(set(rig) & set(RIG_NOT_TAKEN))
+    if taken:
+        raise ValueError(
+            f"--rig {', '.join(taken)}: not taken here (--latency-ms and --lag-ms give the "
+            "rig's latency and response; the time base and vibration are the soak's own)"
+        )
+    return dict(sorted(rig.items()))
+
+
 def settings_of(args) -> dict[str, Any]:
     return {
         "controller": args.controller,
@@ -109,6 +148,8 @@ def settings_of(args) -> dict[str, Any]:
         "compute_ms": args.compute_ms,
         "compute_scale": float(args.compute_scale),
         "block_s": float(args.block_s),
+        "realism": args.realism,
+        "rig": rig_of(args),
     }
 
 
@@ -122,6 +163,8 @@ def new_state(settings: dict[str, Any]) -> dict[str, Any]:
         vibration=settings["vibration"],
         latency_ms=settings["latency_ms"],
         lag_ms=settings["lag_ms"],
+        realism=settings.get("realism", "lab"),
+        rig=settings.get("rig", {}),
     )
     loop = start_loop(
         settings["controller"],
@@ -263,7 +306,13 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "state.pkl"
     state = None if args.fresh else load_state(path)
-    settings = settings_of(args)
+    try:
+        settings = settings_of(args)
+    except ValueError as exc:
+        print(f"ops-bench soak: {exc}", file=sys.stderr)
+        return 2
+    if state is not None:
+        state["settings"] = {**SETTING_DEFAULTS, **state["settings"]}
     if state is not None and state["settings"] != settings and not args.report:
         print(
             f"ops-bench soak: {path} holds a run with other settings ({state['settings']}); "

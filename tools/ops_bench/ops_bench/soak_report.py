@@ -41,7 +41,8 @@ def figure(state: dict[str, Any], result: dict[str, Any], path: Path) -> None:
     bottom.grid(alpha=0.3, which="both")
     rms, locked = result["power_rms_pct"], result["locked_fraction"]
     fig.suptitle(
-        f"{settings['controller']}, N = 5 {settings['mode']}, lab rig, {settings['vibration']} "
+        f"{settings['controller']}, N = 5 {settings['mode']}, {rig_words(settings)}, "
+        f"{settings['vibration']} "
         f"vibration, {settings['rate_hz']:g} Hz, {result['hours']:g} h: P_N/P_max rms "
         + ("-" if rms is None else f"{rms:.2f} %")
         + ", readings >= 0.95 "
@@ -52,6 +53,13 @@ def figure(state: dict[str, Any], result: dict[str, Any], path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, path)
     print(f"wrote {path}", flush=True)
+
+
+def rig_words(settings: dict[str, Any], quote: str = "") -> str:
+    """ "lab rig", or the preset and the figures ``--rig`` changed ("lab rig, trace_adc_bits=0")."""
+    rig = settings.get("rig") or {}
+    changed = "".join(f", {quote}{k}={v}{quote}" for k, v in rig.items())
+    return f"{quote}{settings.get('realism', 'lab')}{quote} rig{changed}"
 
 
 def _f(value, spec: str) -> str:
@@ -68,7 +76,8 @@ def page(result: dict[str, Any], figure_path: Path, out: Path) -> str:
         "",
         "Written by `ops-bench soak` (tools/ops_bench/ops_bench/soak.py). In process, "
         f"`time_base` seconds at {result['rate_hz']:g} Hz, `{result['vibration']}` vibration, "
-        f"the `lab` rig with a latency of {result['latency_ms']:g} ms and a delay-line "
+        f"the {rig_words(result, '`')} with a latency of {result['latency_ms']:g} ms and a "
+        "delay-line "
         f"response of {result['lag_ms']:g} ms, N = 5 {result['mode']} (testing split), seed "
         f"{result['seed']}; the controller's compute caps its rate "
         + (

@@ -38,6 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=10.0, help="loop rate, Hz (default 10)")
     p.add_argument("--vibration", default="lab", choices=VIBRATIONS)
     p.add_argument("--compute-ms", type=float, default=2.0, help="compute per reading, fixed")
+    p.add_argument("--realism", default="lab", choices=("lab", "ideal"), help="as soak's")
+    p.add_argument("--rig", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
+                   help="as soak's: figures of the rig changed from the preset")  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="the steps (.npz) and account (.json)")
     return p
 
@@ -53,7 +56,8 @@ def run_logged(args) -> dict[str, np.ndarray]:
     # loop, step for step
     soak_args = soak_parser().parse_args(
         ["--rate", str(args.rate), "--seed", str(args.seed), "--vibration", args.vibration,
-         "--compute-ms", str(args.compute_ms)]
+         "--compute-ms", str(args.compute_ms), "--realism", args.realism,
+         *(["--rig", *args.rig] if args.rig else [])]
     )  # fmt: skip
     settings = settings_of(soak_args)
     loop = new_state(settings)["loop"]
@@ -150,6 +154,13 @@ def main(argv: list[str] | None = None) -> int:
             "ops-bench soak-steps: --hours and --rate must be > 0, --compute-ms >= 0",
             file=sys.stderr,
         )
+        return 2
+    from .soak import rig_of
+
+    try:
+        rig_of(args)
+    except ValueError as exc:
+        print(f"ops-bench soak-steps: {exc}", file=sys.stderr)
         return 2
     limit_blas_threads()
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -78,3 +78,41 @@ def test_other_settings_are_refused_and_fresh_starts_again(tmp_path):
     assert run(tmp_path, "a", "--seed", "12")[0] == 2
     assert run(tmp_path, "a", "--seed", "12", "--fresh")[0] == 0
     assert soak.load_state(tmp_path / "a" / "state.pkl")["settings"]["seed"] == 12
+
+
+def test_a_changed_rig_is_simulated_told_and_kept_with_the_run(tmp_path):
+    code, out = run(tmp_path, "rig", "--rig", "trace_adc_bits=12", "actuator_hysteresis=0")
+    assert code == 0
+    state = soak.load_state(out / "state.pkl")
+    config = state["loop"].sim.config
+    assert (config.trace_adc_bits, config.actuator_hysteresis) == (12, 0.0)
+    assert config.dac_bits == 16  # the rest of the lab preset
+    rig = {"actuator_hysteresis": 0, "trace_adc_bits": 12}
+    assert state["settings"]["rig"] == rig
+    assert json.loads((out / "summary.json").read_text())["rig"] == rig
+    assert "`trace_adc_bits=12`" in (out / "page" / "index.md").read_text()
+    assert run(tmp_path, "rig")[0] == 2  # resumed only with the same rig
+
+
+@pytest.mark.parametrize(
+    "rig, why",
+    [
+        ("latency_steps=2", "--latency-ms"),
+        ("trace_adc_bits=99", "trace_adc_bits must be"),
+        ("colour=3", "not a figure of the rig"),
+    ],
+)
+def test_a_rig_figure_not_taken_exits_2_naming_it(tmp_path, capsys, rig, why):
+    assert run(tmp_path, "bad", "--rig", rig)[0] == 2
+    assert why in capsys.readouterr().err
+    assert not (tmp_path / "bad" / "state.pkl").exists()
+
+
+def test_a_run_stored_before_the_rig_settings_resumes(tmp_path):
+    assert run(tmp_path, "old")[0] == 0
+    path = tmp_path / "old" / "state.pkl"
+    state = soak.load_state(path)
+    for key in ("realism", "rig"):
+        del state["settings"][key]
+    soak.save_state(state, path)
+    assert run(tmp_path, "old")[0] == 0

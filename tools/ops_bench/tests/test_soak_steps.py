@@ -62,3 +62,12 @@ def test_a_short_run_writes_its_steps_and_account(tmp_path, capsys):
 def test_bad_options_exit_2(tmp_path, capsys):
     assert soak_steps.main(["--hours", "0", "--out", str(tmp_path / "x.npz")]) == 2
     assert "--hours" in capsys.readouterr().err
+
+
+def test_a_rig_figure_not_taken_exits_2(tmp_path, capsys):
+    assert (
+        soak_steps.main(["--hours", "0.01", "--rig", "step_s=1", "--out", str(tmp_path / "x.npz")])
+        == 2
+    )
+    assert "--rig step_s: not taken here" in capsys.readouterr().err
+    assert not (tmp_path / "x.npz").exists()
