@@ -153,17 +153,21 @@ class TrueErrorReference:
         self._command = sim.setpoints_fs[0] - (ahead - period * np.rint(ahead / period))
 
 
-def make_agent(name: str, config, seed: int, setpoints_fs, model=None) -> tuple[Any, int]:
-    """The controller ``name`` (of :data:`CONTROLLERS`, told of ``config``'s rig) or, for a model
-    directory, its policy as a loop controller (``model``: its loaded
+def make_agent(
+    name: str, config, seed: int, setpoints_fs, model=None, params: dict | None = None
+) -> tuple[Any, int]:
+    """The controller ``name`` (of :data:`CONTROLLERS`, told of ``config``'s rig, with
+    ``params`` over its own) or, for a model directory, its policy as a loop controller
+    (``model``: its loaded
     :class:`~ops_controller_ros.runner_factory.ModelStack`, read once by the caller; the loop
     holds, so its own hold is 1). Returns (controller, wait_steps): readings a policy lets pass
     after its command is taken (the told latency; 0 for a controller)."""
     if name in CONTROLLER_NAMES:
         from ops_controller_ros.controllers import make_controller
 
-        kind, params = CONTROLLERS[name]
-        return make_controller(kind, config, params, setpoints_fs=setpoints_fs, seed=seed), 0
+        kind, own = CONTROLLERS[name]
+        told = {**own, **(params or {})}
+        return make_controller(kind, config, told, setpoints_fs=setpoints_fs, seed=seed), 0
     from ops_controller_ros.policy_node import PolicyController
 
     stack = model.with_hold(1)
@@ -414,16 +418,18 @@ class RunStats:
         }
 
 
-def start_loop(name: str, config, seed: int, model=None, compute_ms=None, compute_scale=1.0):
-    """A :class:`CappedLoop` of ``name`` (:func:`make_agent`) on a fresh simulator of
-    ``config`` reset with ``seed`` (the controller's seed too)."""
+def start_loop(
+    name: str, config, seed: int, model=None, compute_ms=None, compute_scale=1.0, params=None
+):
+    """A :class:`CappedLoop` of ``name`` (:func:`make_agent`, with ``params``) on a fresh
+    simulator of ``config`` reset with ``seed`` (the controller's seed too)."""
     from ops_sim_ros.simulation import BatchedSimulation
 
     sim = BatchedSimulation(config, 1, seed=seed)
     result = sim.reset(seed=seed)
     if name == REFERENCE:
         return CappedLoop(sim, TrueErrorReference(sim), 0.0)
-    ctl, wait = make_agent(name, config, seed, result.setpoints_fs[0], model)
+    ctl, wait = make_agent(name, config, seed, result.setpoints_fs[0], model, params)
     return CappedLoop(sim, ctl, compute_ms, wait, compute_scale)
 
 

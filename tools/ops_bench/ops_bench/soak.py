@@ -57,9 +57,10 @@ SETTING_KEYS = (
     "block_s",
     "realism",
     "rig",
+    "params",
 )
 #: What a run stored before a setting existed had of it (its resume compares these).
-SETTING_DEFAULTS = {"realism": "lab", "rig": {}}
+SETTING_DEFAULTS = {"realism": "lab", "rig": {}, "params": {}}
 #: Figures of the rig that --rig does not take: the latency and response are --latency-ms and
 #: --lag-ms, the time base and vibration are the soak's own.
 RIG_NOT_TAKEN = ("latency_steps", "actuator_lag_steps", "time_base", "step_s", "vibration")
@@ -101,6 +102,15 @@ def build_parser() -> argparse.ArgumentParser:
         "trace_adc_bits=12: what a finer scope buys; actuator_hysteresis=0): the rig's keys of "
         "docs/physics.md but the latency and response (--latency-ms, --lag-ms)",
     )
+    p.add_argument(
+        "--param",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="NAME=VALUE",
+        help="the controller's parameters over its defaults (the tracker's: docs/interfaces.md), "
+        "e.g. hold_dither_cycles=0.016",
+    )
     p.add_argument("--block-s", type=float, default=60.0, help="simulated s per figure point")
     p.add_argument(
         "--checkpoint-every",
@@ -119,6 +129,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", action="store_true", help="only the summary, figure and page")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
+
+
+def params_of(args) -> dict[str, Any]:
+    """The controller's parameters of ``--param`` (ValueError naming one it does not have or a
+    value it refuses: the controller is built once to check them)."""
+    from ops_contract.config import make_config
+    from ops_controller_ros.controllers import make_controller
+    from ops_experiments.cli_args import parse_key_values
+
+    params = dict(sorted(parse_key_values(args.param, "--param").items()))
+    if params:
+        make_controller(args.controller, make_config(5, args.mode), params)
+    return params
 
 
 def rig_of(args) -> dict[str, Any]:
@@ -150,6 +173,7 @@ def settings_of(args) -> dict[str, Any]:
         "block_s": float(args.block_s),
         "realism": args.realism,
         "rig": rig_of(args),
+        "params": params_of(args),
     }
 
 
@@ -172,6 +196,7 @@ def new_state(settings: dict[str, Any]) -> dict[str, Any]:
         settings["seed"],
         compute_ms=settings["compute_ms"],
         compute_scale=settings["compute_scale"],
+        params=settings.get("params", {}),
     )
     return {
         "settings": settings,

@@ -59,7 +59,10 @@ def rig_words(settings: dict[str, Any], quote: str = "") -> str:
     """ "lab rig", or the preset and the figures ``--rig`` changed ("lab rig, trace_adc_bits=0")."""
     rig = settings.get("rig") or {}
     changed = "".join(f", {quote}{k}={v}{quote}" for k, v in rig.items())
-    return f"{quote}{settings.get('realism', 'lab')}{quote} rig{changed}"
+    told = "".join(f", {quote}{k}={v}{quote}" for k, v in (settings.get("params") or {}).items())
+    return f"{quote}{settings.get('realism', 'lab')}{quote} rig{changed}" + (
+        f" (the controller with{told[1:]})" if told else ""
+    )
 
 
 def _f(value, spec: str) -> str:

@@ -41,6 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--realism", default="lab", choices=("lab", "ideal"), help="as soak's")
     p.add_argument("--rig", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                    help="as soak's: figures of the rig changed from the preset")  # fmt: skip
+    p.add_argument("--param", nargs="+", action="extend", default=[], metavar="NAME=VALUE",
+                   help="as soak's: the tracker's parameters over its defaults")  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="the steps (.npz) and account (.json)")
     return p
 
@@ -57,7 +59,8 @@ def run_logged(args) -> dict[str, np.ndarray]:
     soak_args = soak_parser().parse_args(
         ["--rate", str(args.rate), "--seed", str(args.seed), "--vibration", args.vibration,
          "--compute-ms", str(args.compute_ms), "--realism", args.realism,
-         *(["--rig", *args.rig] if args.rig else [])]
+         *(["--rig", *args.rig] if args.rig else []),
+         *(["--param", *args.param] if args.param else [])]
     )  # fmt: skip
     settings = settings_of(soak_args)
     loop = new_state(settings)["loop"]
@@ -155,10 +158,11 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    from .soak import rig_of
+    from .soak import params_of, rig_of
 
     try:
         rig_of(args)
+        params_of(argparse.Namespace(param=args.param, controller="tracker", mode="hard"))
     except ValueError as exc:
         print(f"ops-bench soak-steps: {exc}", file=sys.stderr)
         return 2

@@ -116,3 +116,14 @@ def test_a_run_stored_before_the_rig_settings_resumes(tmp_path):
         del state["settings"][key]
     soak.save_state(state, path)
     assert run(tmp_path, "old")[0] == 0
+
+
+def test_the_controllers_parameters_are_its_own_and_kept_with_the_run(tmp_path, capsys):
+    code, out = run(tmp_path, "told", "--param", "hold_dither_cycles=0.02")
+    assert code == 0
+    state = soak.load_state(out / "state.pkl")
+    assert state["loop"].ctl.params.hold_dither_cycles == 0.02
+    assert state["settings"]["params"] == {"hold_dither_cycles": 0.02}
+    assert "hold_dither_cycles=0.02" in (out / "page" / "index.md").read_text()
+    assert run(tmp_path, "bad", "--param", "hold_dither_cycles=5")[0] == 2
+    assert "hold_dither_cycles must be in" in capsys.readouterr().err
