@@ -9,6 +9,11 @@ In process (:mod:`ops_experiments.timed_loop`): ``time_base`` seconds at ``--rat
 P_N/P_max and its residual phase (rms over the stages and of the worst stage) are kept for the
 figure.
 
+What a lab asks next, each kept with the run: ``--rig KEY=VALUE`` changes one of the rig's
+figures (``trace_adc_bits=12``: what a finer digitizer buys over the night; the tracker is told
+of it), ``--realism ideal`` starts from the ideal rig, and ``--param NAME=VALUE`` sets one of
+the controller's parameters.
+
 **Checkpointed**: every ``--checkpoint-every`` simulated seconds the whole state (simulator,
 controller, loop, figures so far) is pickled to ``OUT/state.pkl`` (written aside, then renamed);
 the same command resumes from it (a stopped run loses at most that much), and a larger
