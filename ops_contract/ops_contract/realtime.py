@@ -1,5 +1,5 @@
 """Real-time scheduling for a node that loops: the ``realtime_priority`` parameter of the
-simulator and the controller nodes (:func:`~ops_contract.ros_interface.run_node`).
+simulator, the controller nodes and the rig node (:func:`~ops_contract.ros_interface.run_node`).
 
 A free-running loop over DDS has one period for a round trip: the simulator's reading out, the
 controller's answer back. On a machine that runs anything else beside the loop, the kernel's
@@ -58,8 +58,8 @@ def set_priority(priority: int) -> str | None:
     """Put every thread of this process under ``SCHED_FIFO`` at ``priority`` (1 to
     :data:`MAX_PRIORITY`), or back under the normal scheduler (``priority`` 0).
 
-    Returns None once done, or why it could not be done (nothing changed then, but threads
-    that a refusal met half way: a refusal comes at the first thread, for all alike)."""
+    Returns None once done, or why it could not be done: Linux refuses it for every thread
+    alike, so a refusal comes at the first one and nothing has changed."""
     if not 0 <= priority <= MAX_PRIORITY:
         raise ValueError(f"realtime_priority must be in [0, {MAX_PRIORITY}] (got {priority})")
     if not hasattr(os, "sched_setscheduler"):
