@@ -16,18 +16,11 @@ from ops_contract.executors import EXECUTORS
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
 
-def node(procs, package: str, exe: str, *params: str, name: str):
-    args = ["run", package, exe, "--ros-args"]
-    for p in params:
-        args += ["-p", p]
-    return procs.ros2(*args, name=name)
-
-
 @pytest.mark.parametrize(
     "package, exe", [("ops_sim_ros", "sim"), ("ops_controller_ros", "spgd")], ids=["sim", "spgd"]
 )
 def test_a_bad_executor_is_refused_naming_the_allowed_ones(procs, package, exe):
-    proc = node(procs, package, exe, "executor:=threads", name=exe)
+    proc = procs.node(package, exe, "executor:=threads")
     assert proc.wait_exit(60) == 2, proc.output
     assert "executor must be one of default, events (got 'threads')" in proc.output
     assert_no_traceback(proc.output)
@@ -39,8 +32,7 @@ def test_sim_and_spgd_close_the_loop_and_exit_cleanly(procs, observer, executor,
     """At 500 Hz the simulator is publishing most of the time, so the signal that shuts the
     context down comes in a callback's publish: that is quiet too
     (ops_contract.executors.guarded)."""
-    sim = node(
-        procs,
+    sim = procs.node(
         "ops_sim_ros",
         "sim",
         "stage:=2",
@@ -48,17 +40,11 @@ def test_sim_and_spgd_close_the_loop_and_exit_cleanly(procs, observer, executor,
         "seed:=3",
         "rate_hz:=500.0",
         f"executor:={executor}",
-        name="sim",
     )
-    spgd = node(procs, "ops_controller_ros", "spgd", f"executor:={executor}", name="spgd")
+    spgd = procs.node("ops_controller_ros", "spgd", f"executor:={executor}")
     spgd.wait_for("closing the loop", timeout=60)
     # Closed: the simulator took SPGD's commands (its inbox) and SPGD its readings.
-    observer.wait_until(
-        lambda: observer.count("power") > 50 and np.mean(observer.values("power")[-20:]) >= 0.9,
-        timeout=60,
-        what="the loop closed to P_N/P_max >= 0.9",
-        logs=(sim, spgd),
-    )
+    observer.wait_closed(0.9, timeout=60, logs=(sim, spgd))
     for proc in (spgd, sim):
         proc.signal(sig)
         assert proc.wait_exit(20) == 0, proc.output
@@ -66,15 +52,13 @@ def test_sim_and_spgd_close_the_loop_and_exit_cleanly(procs, observer, executor,
 
 
 def test_the_events_executor_runs_timers_parameters_and_the_inbox(procs, observer):
-    sim = node(
-        procs,
+    sim = procs.node(
         "ops_sim_ros",
         "sim",
         "stage:=3",
         "rate_hz:=50.0",
         "seed:=5",
         "executor:=events",
-        name="sim",
     )
     observer.wait_count("power", 20, timeout=60)
 

@@ -10,7 +10,6 @@ import os
 import signal
 from pathlib import Path
 
-import numpy as np
 import pytest
 from ops_bench.processes import assert_no_traceback, descendants
 from ops_contract.realtime import thread_priorities
@@ -20,13 +19,6 @@ pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 SCHED_OTHER, SCHED_FIFO = 0, 1
 TAKEN = "every thread under SCHED_FIFO"
 REFUSED = "not taken, the node runs under the normal scheduler"
-
-
-def node(procs, package: str, exe: str, *params: str):
-    args = ["run", package, exe, "--ros-args"]
-    for p in params:
-        args += ["-p", p]
-    return procs.ros2(*args, name=exe)
 
 
 def node_threads(proc, exe: str) -> list[tuple[int, int]]:
@@ -45,7 +37,7 @@ def node_threads(proc, exe: str) -> list[tuple[int, int]]:
     ids=["sim", "spgd", "tracker"],
 )
 def test_a_priority_out_of_range_is_refused_naming_the_allowed_ones(procs, package, exe):
-    proc = node(procs, package, exe, "realtime_priority:=99")
+    proc = procs.node(package, exe, "realtime_priority:=99")
     assert proc.wait_exit(60) == 2, proc.output
     assert "realtime_priority must be int in [0, 98]" in proc.output
     assert_no_traceback(proc.output)
@@ -53,8 +45,7 @@ def test_a_priority_out_of_range_is_refused_naming_the_allowed_ones(procs, packa
 
 @pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="Linux scheduling only")
 def test_a_loop_at_a_realtime_priority_runs_under_fifo_or_says_why(procs, observer):
-    sim = node(
-        procs,
+    sim = procs.node(
         "ops_sim_ros",
         "sim",
         "stage:=2",
@@ -63,14 +54,9 @@ def test_a_loop_at_a_realtime_priority_runs_under_fifo_or_says_why(procs, observ
         "rate_hz:=200.0",
         "realtime_priority:=3",
     )
-    spgd = node(procs, "ops_controller_ros", "spgd", "realtime_priority:=3")
+    spgd = procs.node("ops_controller_ros", "spgd", "realtime_priority:=3")
     spgd.wait_for("closing the loop", timeout=60)
-    observer.wait_until(
-        lambda: observer.count("power") > 50 and np.mean(observer.values("power")[-20:]) >= 0.9,
-        timeout=60,
-        what="the loop closed to P_N/P_max >= 0.9",
-        logs=(sim, spgd),
-    )
+    observer.wait_closed(0.9, timeout=60, logs=(sim, spgd))
     for proc, exe in ((sim, "sim"), (spgd, "spgd")):
         found = proc.wait_for(f"realtime_priority 3: ({TAKEN}|{REFUSED})").group(1)
         threads = node_threads(proc, exe)

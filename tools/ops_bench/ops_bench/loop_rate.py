@@ -50,7 +50,7 @@ import time
 from pathlib import Path
 
 from ops_contract.config import TIME_BASES, VIBRATIONS
-from ops_contract.realtime import set_priority
+from ops_contract.realtime import MAX_PRIORITY, set_priority
 
 from ops_bench.closed_loop import (
     REPO,
@@ -371,8 +371,6 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.busy < 0:
         ap.error(f"--busy: a count >= 0 (got {args.busy})")
     if args.realtime_priority:
-        from ops_contract.realtime import MAX_PRIORITY
-
         if not 0 < args.realtime_priority <= MAX_PRIORITY:
             ap.error(f"--realtime-priority: 0 to {MAX_PRIORITY} (got {args.realtime_priority})")
         refused = set_priority(args.realtime_priority)  # allowed here, so to the nodes too

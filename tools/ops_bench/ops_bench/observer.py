@@ -6,6 +6,8 @@ from __future__ import annotations
 import contextlib
 import time
 
+import numpy as np
+
 from ops_bench.processes import log_tails
 
 #: Commands the observer's writer keeps until the simulator has them (a 3 s flood at 3,000/s).
@@ -93,6 +95,15 @@ class TopicObserver:
 
     def wait_count(self, name: str, n: int, timeout: float = 30.0):
         self.wait_until(lambda: self.count(name) >= n, timeout, f"{n} messages on ops/{name}")
+
+    def wait_closed(self, level: float = 0.9, timeout: float = 60.0, logs=()):
+        """Until the loop has closed: more than 50 readings on ops/power, the last 20 of them
+        at ``level`` on average."""
+
+        def closed() -> bool:
+            return self.count("power") > 50 and np.mean(self.values("power")[-20:]) >= level
+
+        self.wait_until(closed, timeout, f"the loop closed to P_N/P_max >= {level:g}", logs)
 
     def send(self, values):
         from std_msgs.msg import Float32MultiArray

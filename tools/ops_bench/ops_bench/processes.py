@@ -190,6 +190,14 @@ class ProcessGroup:
     def ros2(self, *args, name: str | None = None, env=None) -> Process:
         return self.start([*ros2_command(), *args], name=name or f"ros2_{args[0]}", env=env)
 
+    def node(self, package: str, exe: str, *params: str, name: str | None = None) -> Process:
+        """``ros2 run package exe --ros-args -p P ...`` for each ``NAME:=VALUE`` of ``params``
+        (its log named ``name``, or ``exe``)."""
+        args = ["run", package, exe, "--ros-args"]
+        for p in params:
+            args += ["-p", p]
+        return self.ros2(*args, name=name or exe)
+
     def stop_all(self):
         for proc in reversed(self.started):
             proc.stop()

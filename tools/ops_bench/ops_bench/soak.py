@@ -48,23 +48,8 @@ from ops_bench import REPO
 FIGURE = REPO / "docs" / "figures" / "soak.png"
 PAGE = REPO / "docs" / "results" / "soak"
 GOAL_RMS_PCT, GOAL_LOCKED, GOAL_LOSSES = 1.5, 0.999, 0
-#: What a stored run must match to be resumed (the hours may grow).
-SETTING_KEYS = (
-    "controller",
-    "rate_hz",
-    "seed",
-    "mode",
-    "vibration",
-    "latency_ms",
-    "lag_ms",
-    "compute_ms",
-    "compute_scale",
-    "block_s",
-    "realism",
-    "rig",
-    "params",
-)
-#: What a run stored before a setting existed had of it (its resume compares these).
+#: What a run stored before a setting existed had of it: a run resumes where its stored
+#: settings, these filled in, equal the command's (the hours may grow).
 SETTING_DEFAULTS = {"realism": "lab", "rig": {}, "params": {}}
 #: Figures of the rig that --rig does not take: the latency and response are --latency-ms and
 #: --lag-ms, the time base and vibration are the soak's own.
@@ -192,8 +177,8 @@ def new_state(settings: dict[str, Any]) -> dict[str, Any]:
         vibration=settings["vibration"],
         latency_ms=settings["latency_ms"],
         lag_ms=settings["lag_ms"],
-        realism=settings.get("realism", "lab"),
-        rig=settings.get("rig", {}),
+        realism=settings["realism"],
+        rig=settings["rig"],
     )
     loop = start_loop(
         settings["controller"],
@@ -201,7 +186,7 @@ def new_state(settings: dict[str, Any]) -> dict[str, Any]:
         settings["seed"],
         compute_ms=settings["compute_ms"],
         compute_scale=settings["compute_scale"],
-        params=settings.get("params", {}),
+        params=settings["params"],
     )
     return {
         "settings": settings,

@@ -57,10 +57,9 @@ def figure(state: dict[str, Any], result: dict[str, Any], path: Path) -> None:
 
 def rig_words(settings: dict[str, Any], quote: str = "") -> str:
     """ "lab rig", or the preset and the figures ``--rig`` changed ("lab rig, trace_adc_bits=0")."""
-    rig = settings.get("rig") or {}
-    changed = "".join(f", {quote}{k}={v}{quote}" for k, v in rig.items())
-    told = "".join(f", {quote}{k}={v}{quote}" for k, v in (settings.get("params") or {}).items())
-    return f"{quote}{settings.get('realism', 'lab')}{quote} rig{changed}" + (
+    changed = "".join(f", {quote}{k}={v}{quote}" for k, v in settings["rig"].items())
+    told = "".join(f", {quote}{k}={v}{quote}" for k, v in settings["params"].items())
+    return f"{quote}{settings['realism']}{quote} rig{changed}" + (
         f" (the controller with{told[1:]})" if told else ""
     )
 

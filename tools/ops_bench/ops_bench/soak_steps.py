@@ -47,22 +47,29 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def run_logged(args) -> dict[str, np.ndarray]:
-    """Every step of the soak's loop for ``args.hours``."""
-    from tqdm import tqdm
-
+def soak_settings(args) -> dict:
+    """soak's settings with its defaults (the tracker, N = 5 hard, the lab rig's 1 ms) and
+    these options: the same loop, step for step (ValueError as soak's, naming a bad --rig or
+    --param)."""
     from .soak import build_parser as soak_parser
-    from .soak import new_state, settings_of
+    from .soak import settings_of
 
-    # soak's settings with its defaults (the tracker, N = 5 hard, the lab rig's 1 ms): the same
-    # loop, step for step
     soak_args = soak_parser().parse_args(
         ["--rate", str(args.rate), "--seed", str(args.seed), "--vibration", args.vibration,
          "--compute-ms", str(args.compute_ms), "--realism", args.realism,
          *(["--rig", *args.rig] if args.rig else []),
          *(["--param", *args.param] if args.param else [])]
     )  # fmt: skip
-    settings = settings_of(soak_args)
+    return settings_of(soak_args)
+
+
+def run_logged(args, settings: dict) -> dict[str, np.ndarray]:
+    """Every step of the soak's loop (of ``settings``: :func:`soak_settings`) for
+    ``args.hours``."""
+    from tqdm import tqdm
+
+    from .soak import new_state
+
     loop = new_state(settings)["loop"]
     sim, ctl = loop.sim, loop.ctl
     period = float(sim.config.optical_period_fs)
@@ -158,17 +165,14 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    from .soak import params_of, rig_of
-
     try:
-        rig_of(args)
-        params_of(argparse.Namespace(param=args.param, controller="tracker", mode="hard"))
+        settings = soak_settings(args)
     except ValueError as exc:
         print(f"ops-bench soak-steps: {exc}", file=sys.stderr)
         return 2
     limit_blas_threads()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    log = run_logged(args)
+    log = run_logged(args, settings)
     np.savez_compressed(args.out, **log)
     result = {
         "command": "ops-bench soak-steps " + " ".join(sys.argv[1:] if argv is None else argv),
