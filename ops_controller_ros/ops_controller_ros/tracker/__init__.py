@@ -98,8 +98,9 @@ within the actuator range.
 
 from .core import PhaseTracker
 from .fit import PathFits
+from .node_params import NODE_FIELDS, node_defaults, node_param_specs
 from .noise import FIT_VAR_FITS, FIT_VAR_MIN
-from .params import NODE_FIELDS, TrackerParams, node_defaults, node_param_specs
+from .params import TrackerParams
 
 __all__ = [
     "FIT_VAR_FITS",

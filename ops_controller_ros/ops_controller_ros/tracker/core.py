@@ -124,7 +124,7 @@ class PhaseTracker:
         """Start again from ``setpoints_fs``: forget the estimate and the readings (the latency
         found, the range moves and the calibration are kept)."""
         p = self.params
-        self.loop = Loop.start(self.rig.cycles(setpoints_fs))
+        self.loop = Loop.start(self.rig.rest(setpoints_fs))
         self.noise = Noise(told_noisy=self.rig.told_noisy)
         self.window = Window(fit_window(p, self.rig.told_noisy))
         self.lock = Lock(self.stage, memory=drift_memory(p, self.model, self.rig.vibration))
@@ -140,7 +140,7 @@ class PhaseTracker:
         new excursions or undo a whole-cycle move that the first one made."""
         loop, lock, p = self.loop, self.lock, self.params
         if loop.awaiting and not loop.revise:
-            return loop.last_command * self.rig.period_fs
+            return self.rig.wire(loop.last_command)
         loop.revise = False
         if lock.estimate is not None:
             # aim at the stacking point of the step the command acts at
@@ -159,7 +159,7 @@ class PhaseTracker:
         u = self.rig.reachable(u, loop.position)
         self.watch.command(loop.step, u)
         loop.send(u, self.watch.latency)
-        return u * self.rig.period_fs
+        return self.rig.wire(u)
 
     def observe(
         self, power: float, pulse_energies=None, steps: int = 1, command_age: int | None = None

@@ -12,6 +12,7 @@ import numpy as np
 from ops_contract.config import SPEED_OF_LIGHT_NM_PER_FS
 
 from . import fit
+from .hysteresis import HysteresisCompensation
 from .params import TrackerParams
 from .vibration import ShakenStacker, told_vibration
 from .weights import WeightedStacker, source_noise_weights
@@ -91,6 +92,8 @@ class RigModel:
         # ... and the delay lines follow it at first order: a reading is matched to where they are
         lag = float(getattr(config, "actuator_lag_steps", 0.0))
         self.lag_gain = lag_gain(lag) if lag > 0.0 else None
+        # ... through an open-loop piezo's hysteresis, which the commands undo (.hysteresis)
+        self.compensation = HysteresisCompensation.told(config, params)
         w = params.walk_cycles
         # the path fits' random walk per step: by default six times the model's jitter, so that
         # a rig noisier than nominal is still followed; and the vibration the path follows
@@ -172,6 +175,18 @@ class RigModel:
             period = self.period_fs
             self._bounds = (period, self.range_fs[0] / period, self.range_fs[1] / period)
         return np.minimum(np.maximum(u, self._bounds[1]), self._bounds[2])  # (np.clip)
+
+    def rest(self, setpoints_fs) -> np.ndarray:
+        """The lines at rest on ``setpoints_fs``, where the hysteresis compensation starts; the
+        set-points in cycles."""
+        if self.compensation is not None:
+            self.compensation.reset(setpoints_fs)
+        return self.cycles(setpoints_fs)
+
+    def wire(self, u: np.ndarray) -> np.ndarray:
+        """The command ``u`` (cycles) as sent: fs, through the hysteresis compensation."""
+        fs = u * self.period_fs
+        return fs if self.compensation is None else self.compensation.drive(fs)
 
     def cycles(self, fs) -> np.ndarray:
         """Set-points in cycles of the model."""

@@ -3,8 +3,8 @@
 :class:`TrackerParams` is the one default set: ``evaluate --controller tracker``, the benchmark
 and the ``tracker`` node all start from it. A field declared with ``node=True`` is also a
 parameter of the node (``ops_tracker``), whose :class:`~ops_contract.node_params.ParamSpec` is
-generated from the same declaration (:func:`node_param_specs`), so its name, description,
-range and default cannot drift apart from the tracker's.
+generated from the same declaration (:mod:`.node_params`), so its name, description, range and
+default cannot drift apart from the tracker's.
 
 The one exception is a *real-time cap*, ``knot_budget_ms``: compute per reading in milliseconds
 of the wall clock. A controller without a clock (in process) has no use for it and runs with
@@ -465,6 +465,13 @@ class TrackerParams:
         1000.0,
         node=True,
     )
+    # Told of an open-loop piezo's hysteresis (actuator_hysteresis), drive the lines through
+    # its inverse so that they go where the tracker means them to (tracker.hysteresis).
+    compensate_hysteresis: bool = _declare(
+        True,
+        "true: drive the lines through the inverse of the told actuator hysteresis",
+        node=True,
+    )
     calibrate: bool = _declare(True, "estimate the detector's gain and offset online")
     calibrate_optics: bool = _declare(
         False, "estimate wavelength and pulse width too (experimental)"
@@ -554,43 +561,3 @@ class TrackerParams:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-def declared(name: str) -> dict:
-    """The declaration (doc, low, high, ...) of the field ``name`` of TrackerParams."""
-    return TrackerParams.__dataclass_fields__[name].metadata
-
-
-#: The fields of TrackerParams that are parameters of the tracker node, in declaration order.
-NODE_FIELDS = tuple(f.name for f in fields(TrackerParams) if f.metadata.get("node"))
-
-
-def node_defaults() -> dict:
-    """The node's values of its TrackerParams fields: the defaults, except the real-time caps."""
-    base = TrackerParams()
-    out = {}
-    for name in NODE_FIELDS:
-        meta = declared(name)
-        out[name] = getattr(base, name) if meta["node_default"] is None else meta["node_default"]
-    return out
-
-
-def node_param_specs() -> list:
-    """The node's ParamSpecs of its TrackerParams fields, generated from the declarations."""
-    from ops_contract.node_params import ParamSpec
-
-    specs = []
-    for name, default in node_defaults().items():
-        meta = declared(name)
-        specs.append(
-            ParamSpec(
-                name,
-                default,
-                meta["doc"],
-                low=meta["low"],
-                high=meta["high"],
-                low_exclusive=meta["low_open"],
-                choices=meta["choices"],
-            )
-        )
-    return specs
