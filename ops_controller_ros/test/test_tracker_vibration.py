@@ -155,3 +155,17 @@ def test_the_tracker_follows_a_reversing_drift_without_a_loss(seed):
     assert turns >= 2, turns
     assert longest <= 5, longest  # no lock lost
     assert off < 0.004, off
+
+
+def test_the_trace_rounding_is_weighed_as_the_tracker_is_told():
+    """A digitized trace's rounding counts ``quantization_noise_steps`` ADC steps (0.6 by
+    default, under a vibration or not), as ops_sim_ros.rig.reading_noise_std weighs it."""
+    from ops_sim_ros.rig import reading_noise_std
+
+    for config in (make_config(5, "hard", "test", realism="lab"), _timed(10)):
+        quiet = replace(config, pulse_amplitude_noise=0.0)
+        told = PhaseTracker(config, seed=1).params.detector_noise
+        assert told == pytest.approx(reading_noise_std(quiet, 0.6))
+        light = TrackerParams(quantization_noise_steps=0.3)
+        lighter = PhaseTracker(config, light, seed=1).params.detector_noise
+        assert lighter == pytest.approx(reading_noise_std(quiet, 0.3)) and lighter < told

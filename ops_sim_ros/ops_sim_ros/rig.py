@@ -129,21 +129,23 @@ def digitize(
 
 
 #: A digitized reading's error as a controller should weigh it, in steps of the ADC: rounding
-#: alone is 0.29 steps rms, but it is biased, not noise; the tracker told 0.6 held hard mode on
-#: an 8-bit trace (0.994, against 0.977 with 0.29 and 0.833 with none; docs/physics.md).
+#: alone is 0.29 steps rms, but where the readings hold still it is biased, not noise; the
+#: tracker told 0.6 held hard mode on an 8-bit trace (0.994, against 0.977 with 0.29 and 0.833
+#: with none; docs/physics.md).
 QUANTIZATION_NOISE_STEPS = 0.6
 
 
-def reading_noise_std(config) -> float:
+def reading_noise_std(config, quantization_steps: float = QUANTIZATION_NOISE_STEPS) -> float:
     """The std of the error of a detected pulse energy that a controller told of this rig
-    should expect: the detector's noise (averaged), the digitizer's rounding and the source's
-    pulse-to-pulse noise (the stacked pulse's energy, the largest, moves by about its rms over
-    the square root of the pulse count)."""
+    should expect: the detector's noise (averaged), the digitizer's rounding
+    (``quantization_steps`` of its step) and the source's pulse-to-pulse noise (the stacked
+    pulse's energy, the largest, moves by about its rms over the square root of the pulse
+    count)."""
     var = config.detector_noise**2 / config.trace_averages
     var += config.pulse_amplitude_noise**2 / 2**config.stage
     if config.trace_adc_bits > 0:
         step = config.trace_full_scale / (2**config.trace_adc_bits - 1)
-        var += (QUANTIZATION_NOISE_STEPS * step) ** 2
+        var += (quantization_steps * step) ** 2
     return float(var**0.5)
 
 

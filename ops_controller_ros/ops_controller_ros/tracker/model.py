@@ -37,12 +37,14 @@ def at_wavelength(stacker, wavelength_nm: float):
 
 def told_noise(params: TrackerParams, model) -> TrackerParams:
     """The parameters with the detector noise the rig's model implies (its detector noise and
-    digitizer, :func:`ops_sim_ros.rig.reading_noise_std`) when that is more than assumed."""
+    digitizer, :func:`ops_sim_ros.rig.reading_noise_std`, the digitizer's rounding weighed as
+    ``quantization_noise_steps``) when that is more than assumed."""
     from ops_sim_ros.rig import reading_noise_std
 
     noise = 0.0
+    steps = params.quantization_noise_steps
     if hasattr(model, "trace_adc_bits"):  # the source's noise is weighed per entry (.weights)
-        noise = reading_noise_std(replace(model, pulse_amplitude_noise=0.0))
+        noise = reading_noise_std(replace(model, pulse_amplitude_noise=0.0), steps)
     return replace(params, detector_noise=noise) if noise > params.detector_noise else params
 
 

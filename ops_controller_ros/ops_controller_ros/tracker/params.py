@@ -204,6 +204,15 @@ class TrackerParams:
     vibration_dither_factor: float = _declare(
         0.2, "under a told vibration, noisy_dither_factor", 0.0, 2.0
     )
+    # A digitized trace's rounding as the fits weigh it, in steps of its ADC (the rig's told
+    # trace_adc_bits): where the readings hold still near the optimum the rounding is a bias,
+    # and weighed as 0.6 steps the tracker held the paper's hard mode best on an 8-bit trace.
+    # Under the lab vibration 0.3 (the rounding's own rms) raised the share of readings >= 0.95
+    # and lost more locks at the drift's turns (docs/loop_rate.md, "The tracker under
+    # vibration").
+    quantization_noise_steps: float = _declare(
+        0.6, "a digitized trace's rounding as the fits weigh it, ADC steps", 0.0, 10.0
+    )
     vibration_knot_walk_sigmas: float = _declare(
         3.0,
         "under a told vibration, knot_walk_sigmas (clean or noisy detector)",
