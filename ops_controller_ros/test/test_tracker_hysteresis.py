@@ -51,3 +51,31 @@ def test_no_hysteresis_told_sends_the_set_points_as_they_are():
     wire = tracker.command()
     assert np.allclose(wire, tracker.loop.last_command * tracker.rig.period_fs)
     assert PhaseTracker(make_config(3, "hard", "test", realism="lab")).rig.compensation
+
+
+@pytest.mark.parametrize("fraction", [0.05, 0.3])
+def test_the_compiled_inverse_is_the_simulators(fraction):
+    """The compensation's kernel against the simulator's hysteresis (and so against
+    ops_sim_ros.rig.hysteresis_drive, tested there): jumps across the travel and past its ends,
+    then the small moves of a held set-point; positions and operators' states agree."""
+    from ops_controller_ros.tracker.hysteresis import HysteresisCompensation
+    from ops_sim_ros.rig import hysteresis, hysteresis_radii
+
+    config = make_config(4, "hard", "test", actuator_hysteresis=fraction)
+    comp = HysteresisCompensation(config)
+    comp.reset(np.zeros(4))
+    half = config.actuator_range_fs
+    radii = hysteresis_radii(half)
+    plays = np.zeros((radii.size, 1, 4))
+    rng = np.random.default_rng(7)
+    meant = np.zeros(4)
+    for t in range(400):
+        if t % 50 == 0:
+            meant = rng.uniform(-1.1 * half, 1.1 * half, 4)
+        else:
+            meant = meant + rng.normal(0.0, 0.03 if t % 100 < 50 else 2.0, 4)
+        drive = comp.drive(meant)
+        position, plays = hysteresis(drive[None], plays, radii, fraction)
+        reachable = np.abs(drive) < half  # (past the travel's end the drive is clipped)
+        assert np.allclose(position[0][reachable], meant[reachable], atol=1e-9), t
+        assert np.allclose(comp.plays, plays[:, 0, :], atol=1e-12), t
