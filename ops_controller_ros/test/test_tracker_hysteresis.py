@@ -53,11 +53,11 @@ def test_no_hysteresis_told_sends_the_set_points_as_they_are():
     assert PhaseTracker(make_config(3, "hard", "test", realism="lab")).rig.compensation
 
 
-@pytest.mark.parametrize("fraction", [0.05, 0.3])
+@pytest.mark.parametrize("fraction", [0.02, 0.05, 0.12, 0.3, 0.5])
 def test_the_compiled_inverse_is_the_simulators(fraction):
-    """The compensation's kernel against the simulator's hysteresis (and so against
-    ops_sim_ros.rig.hysteresis_drive, tested there): jumps across the travel and past its ends,
-    then the small moves of a held set-point; positions and operators' states agree."""
+    """The compensation's kernel against the simulator's hysteresis: jumps across the travel and
+    past its ends, then the small moves of a held set-point; positions and operators' states
+    agree, and a drive given again leaves the operators as they were."""
     from ops_controller_ros.tracker.hysteresis import HysteresisCompensation
     from ops_sim_ros.rig import hysteresis, hysteresis_radii
 
@@ -79,3 +79,5 @@ def test_the_compiled_inverse_is_the_simulators(fraction):
         reachable = np.abs(drive) < half  # (past the travel's end the drive is clipped)
         assert np.allclose(position[0][reachable], meant[reachable], atol=1e-9), t
         assert np.allclose(comp.plays, plays[:, 0, :], atol=1e-12), t
+        assert np.array_equal(comp.drive(meant), drive)  # asked again: the same drive ...
+        assert np.allclose(comp.plays, plays[:, 0, :], atol=1e-12), t  # ... the same memory

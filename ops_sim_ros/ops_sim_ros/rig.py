@@ -45,6 +45,12 @@ def hysteresis_radii(half_travel: float) -> np.ndarray:
     return (k - 0.5) / HYSTERESIS_OPERATORS * half_travel
 
 
+def hysteresis_weight(fraction: float) -> float:
+    """The play operators' weight w in :func:`hysteresis` that opens a loop ``fraction`` of the
+    travel wide."""
+    return 4.0 * fraction / (1.0 + 4.0 * fraction)
+
+
 def hysteresis(x: np.ndarray, plays: np.ndarray, radii: np.ndarray, fraction: float):
     """An open-loop piezo's position for drive ``x`` (fs), and the operators' new states.
 
@@ -55,58 +61,9 @@ def hysteresis(x: np.ndarray, plays: np.ndarray, radii: np.ndarray, fraction: fl
     further than commanded at its ends (a piezo's response grows with its excursion); a sweep of
     amplitude A opens one about (A / half travel)^2 as wide (the Rayleigh law of
     piezoceramics). Monotonic for every fraction in [0, 1)."""
-    weight = 4.0 * fraction / (1.0 + 4.0 * fraction)
+    weight = hysteresis_weight(fraction)
     plays = play(x[None], plays, radii[:, None, None])
     return (x - weight * np.mean(x[None] - plays, axis=0)) / (1.0 - weight), plays
-
-
-def hysteresis_drive(
-    target: np.ndarray, plays: np.ndarray, radii: np.ndarray, fraction: float
-) -> np.ndarray:
-    """The drive that takes :func:`hysteresis` from the operators' states ``plays`` to
-    ``target`` (fs): its inverse, as a piezo controller's hysteresis compensation computes it.
-
-    The position is (x - w mean_k clip(x - p_k, -r_k, r_k)) / (1 - w): continuous, increasing
-    and linear between the 2K break points p_k +- r_k. A move smaller than the smallest radius
-    stays in one linear piece, where one Newton step is exact; a step that does not land within
-    a thousandth of a fs of the target is solved exactly by :func:`_drive_by_breaks`.
-    ``plays`` (K, B, N) and ``target`` (B, N) as :func:`hysteresis` takes them; the operators'
-    states are not changed."""
-    target = np.asarray(target, dtype=np.float64)
-    if fraction <= 0.0:
-        return target.copy()
-    weight = 4.0 * fraction / (1.0 + 4.0 * fraction)
-    r = radii[:, None, None]
-    x = target.copy()
-    for _ in range(4):
-        lag = x[None] - plays
-        moving = np.abs(lag) >= r  # the operators that follow the drive
-        position = (x - weight * np.mean(np.clip(lag, -r, r), axis=0)) / (1.0 - weight)
-        slope = (1.0 - weight * (1.0 - np.mean(moving, axis=0))) / (1.0 - weight)
-        miss = target - position
-        if np.max(np.abs(miss)) < 1e-9:
-            return x
-        x = x + miss / slope
-    return _drive_by_breaks(target, plays, r, weight)
-
-
-def _drive_by_breaks(target, plays, r, weight) -> np.ndarray:
-    """:func:`hysteresis_drive` solved exactly: the position at every break point, and the
-    drive interpolated in the piece that holds the target (slope 1 / (1 - w) beyond them)."""
-    breaks = np.sort(np.concatenate([plays - r, plays + r]), axis=0)  # (2K, B, N)
-    lag = np.clip(breaks[:, None] - plays[None], -r[None], r[None]).mean(axis=1)
-    at_breaks = (breaks - weight * lag) / (1.0 - weight)  # increasing along axis 0
-    i = np.sum(at_breaks < target[None], axis=0, keepdims=True)  # the piece's end
-    hi = np.minimum(i, len(breaks) - 1)
-    lo = np.maximum(i - 1, 0)
-    x0, x1 = (np.take_along_axis(breaks, k, 0)[0] for k in (lo, hi))
-    y0, y1 = (np.take_along_axis(at_breaks, k, 0)[0] for k in (lo, hi))
-    span = y1 - y0
-    inside = span > 0.0
-    share = np.where(inside, (target - y0) / np.where(inside, span, 1.0), 0.0)
-    out = x0 + share * (x1 - x0)
-    out = np.where(target < y0, x0 + (target - y0) * (1.0 - weight), out)
-    return np.where(target > y1, x1 + (target - y1) * (1.0 - weight), out)
 
 
 def digitize(

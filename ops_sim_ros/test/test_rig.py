@@ -6,14 +6,7 @@ import re
 import numpy as np
 import pytest
 from ops_contract.config import REALISM_PRESETS, make_config
-from ops_sim_ros.rig import (
-    Actuator,
-    digitize,
-    hysteresis,
-    hysteresis_drive,
-    hysteresis_radii,
-    quantize,
-)
+from ops_sim_ros.rig import Actuator, digitize, quantize
 from ops_sim_ros.simulation import BatchedSimulation
 
 
@@ -98,33 +91,6 @@ def test_hysteresis_opens_a_loop_its_fraction_of_the_travel_wide(fraction):
     # small moves go as far as commanded (the rig's calibration is made with them)
     x, up, down, travel = _sweep(fraction, amplitude=0.01)
     assert np.allclose(np.diff(up), np.diff(x), rtol=0.05)
-
-
-@pytest.mark.parametrize("fraction", [0.02, 0.12, 0.5])
-@pytest.mark.parametrize("seed", [0, 1])
-def test_the_hysteresis_drive_puts_the_position_where_it_was_meant(fraction, seed):
-    """The inverse is exact for large jumps (beyond every operator's radius, across the travel
-    and past its ends) and for the small moves of a loop that holds a set-point, from any
-    operators' memory; and a drive given again leaves the memory as it was."""
-    rng = np.random.default_rng(seed)
-    half = 80.0
-    radii = hysteresis_radii(half)
-    plays = np.zeros((radii.size, 3, 4))
-    meant = np.zeros((3, 4))
-    for t in range(600):
-        if t % 40 == 0:
-            meant = rng.uniform(-1.2 * half, 1.2 * half, meant.shape)
-        else:
-            meant = meant + rng.normal(0.0, 0.05 if t % 80 < 40 else 3.0, meant.shape)
-        drive = hysteresis_drive(meant, plays, radii, fraction)
-        position, plays = hysteresis(drive, plays, radii, fraction)
-        assert np.allclose(position, meant, rtol=0.0, atol=1e-9), t
-        again, same = hysteresis(
-            hysteresis_drive(meant, plays, radii, fraction), plays, radii, fraction
-        )
-        assert np.allclose(again, meant, atol=1e-9) and np.allclose(same, plays, atol=1e-9)
-    # no hysteresis: the drive is the set-point
-    assert np.array_equal(hysteresis_drive(meant, plays, radii, 0.0), meant)
 
 
 def test_the_digitizer_rounds_to_its_levels_and_clips_at_full_scale():

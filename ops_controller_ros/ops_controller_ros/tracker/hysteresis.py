@@ -3,12 +3,12 @@
 A piezo driven open loop goes where its hysteresis takes it, not where it was sent: the tracker
 would see that as drift that turns whenever a line turns. Told of the rig's hysteresis
 (``actuator_hysteresis``) it drives each line so that the model's position is the set-point it
-means, as a piezo controller's compensation does (a Prandtl-Ishlinskii model inverted; the
-numpy reference is :func:`ops_sim_ros.rig.hysteresis_drive`). The rest of the tracker then works
-in set-points that the lines take as they are; only the commands on the wire differ.
+means, as a piezo controller's compensation does (the simulator's Prandtl-Ishlinskii model,
+:func:`ops_sim_ros.rig.hysteresis`, inverted). The rest of the tracker then works in set-points
+that the lines take as they are; only the commands on the wire differ.
 
-The inverse runs in a compiled kernel (:func:`_drive_kernel`): numpy's dozen small calls per
-command cost the tracker 0.1-0.15 ms a reading, the kernel a few µs.
+The inverse runs in a compiled kernel (:func:`_drive_kernel`): the same in numpy's dozen small
+calls per command cost the tracker 0.1-0.15 ms a reading, the kernel a few µs.
 """
 
 from __future__ import annotations
@@ -72,13 +72,11 @@ class HysteresisCompensation:
     the operators as they were."""
 
     def __init__(self, config):
-        from ops_sim_ros.rig import hysteresis_radii
+        from ops_sim_ros.rig import hysteresis_radii, hysteresis_weight
 
-        fraction = float(config.actuator_hysteresis)
-        self.weight = 4.0 * fraction / (1.0 + 4.0 * fraction)  # (as ops_sim_ros.rig.hysteresis)
+        self.weight = hysteresis_weight(float(config.actuator_hysteresis))
         self.half_travel = float(config.actuator_range_fs)
-        self.dac_bits = int(getattr(config, "dac_bits", 0))
-        bits = self.dac_bits
+        bits = self.dac_bits = int(getattr(config, "dac_bits", 0))
         self.dac_step = 2.0 * self.half_travel / (2**bits - 1) if bits > 0 else 0.0
         self.radii = hysteresis_radii(self.half_travel)
         self.plays = None  # (K, N) the operators' states
@@ -112,7 +110,7 @@ class HysteresisCompensation:
         if self._last[0] is not None and np.array_equal(meant, self._last[0]):
             return self._last[1].copy()
         x = _drive_kernel(
-            meant.copy(), self.plays, self.radii, self.weight, self.half_travel, self.dac_step
+            meant, self.plays, self.radii, self.weight, self.half_travel, self.dac_step
         )
         self._last = (meant.copy(), x)
         return x.copy()

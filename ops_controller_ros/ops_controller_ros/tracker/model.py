@@ -42,9 +42,9 @@ def told_noise(params: TrackerParams, model) -> TrackerParams:
     from ops_sim_ros.rig import reading_noise_std
 
     noise = 0.0
-    steps = params.quantization_noise_steps
     if hasattr(model, "trace_adc_bits"):  # the source's noise is weighed per entry (.weights)
-        noise = reading_noise_std(replace(model, pulse_amplitude_noise=0.0), steps)
+        quiet = replace(model, pulse_amplitude_noise=0.0)
+        noise = reading_noise_std(quiet, params.quantization_noise_steps)
     return replace(params, detector_noise=noise) if noise > params.detector_noise else params
 
 
