@@ -312,7 +312,12 @@ def test_spgd_survives_a_simulator_restart(procs, observer, lockstep):
     )
     sim.stop()
     spgd.wait_for("re-sending", timeout=20)
-    assert _delays_readers(observer, "ops_spgd") == ["TRANSIENT_LOCAL", "VOLATILE"]
+    # (the node has taken it back; the observer's view of the graph follows by DDS discovery)
+    observer.wait_until(
+        lambda: _delays_readers(observer, "ops_spgd") == ["TRANSIENT_LOCAL", "VOLATILE"],
+        timeout=20,
+        what="the silent simulator's latched reader of /ops/delays taken back",
+    )
     step = ["lockstep:=true"] if lockstep else []
     start_sim(procs, "stage:=3", "mode:=easy", "seed:=9", *step, name="sim_b")
     spgd.wait_for("now has 3 stages", timeout=30)
