@@ -41,6 +41,7 @@ LIMITS = {
     "jitter_sigma_cycles": (0.0, 1.0),
     "drift_slope_min_cycles": (0.0, 1.0),
     "drift_slope_max_cycles": (0.0, 1.0),
+    "drift_turn_s": (0.0, 3600.0),
     "initial_sigma_cycles": (0.0, 10.0),
     "actuator_range_cycles": (0.0, 1000.0),
     # the rig between controller and optics (ops_sim_ros.rig, docs/physics.md)
@@ -160,6 +161,9 @@ class OpsConfig:
     drift_knot_min_steps: int = 0  # 0: mu drawn at each reset, constant within the episode
     drift_knot_max_steps: int = 0  # > 0: mu redrawn every knot_min..knot_max steps
     drift_bound_cycles: float = 10.0  # the accumulated drift turns back at +- this
+    # 0: the drift turns back at the bound in one step; > 0: its slope reverses smoothly over
+    # this many seconds (0.1 s a step under time_base step), as a lab's thermal drift turns
+    drift_turn_s: float = 0.0
     # --- initial state (the hidden delay errors at reset; set-points start at 0) and actuator
     initial_sigma_cycles: float = 0.26
     initial_clip_sigmas: float = 2.0

@@ -74,11 +74,13 @@ def timed_config(
     latency_ms: float = 1.0,
     lag_ms: float = 1.0,
     rig: dict | None = None,
+    drift_turn_s: float = 0.0,
 ):
     """The configuration of a loop at ``rate_hz`` in physical time: ``realism``'s rig with its
     latency (``latency_ms``, rounded to steps) and the delay lines' response time (``lag_ms``,
-    in steps, not rounded) given in ms, ``vibration``, and the rig's other figures changed by
-    ``rig`` (OpsConfig fields: ``trace_adc_bits``, ``actuator_hysteresis``, ...)."""
+    in steps, not rounded) given in ms, ``vibration``, the rig's other figures changed by
+    ``rig`` (OpsConfig fields: ``trace_adc_bits``, ``actuator_hysteresis``, ...) and the
+    drift's turns at its bound taking ``drift_turn_s`` seconds (0: one step)."""
     step_s = 1.0 / float(rate_hz)
     latency = round(float(latency_ms) / 1000.0 / step_s)
     lag = float(lag_ms) / 1000.0 / step_s
@@ -93,6 +95,7 @@ def timed_config(
         vibration=vibration,
         latency_steps=latency,
         actuator_lag_steps=min(lag, high),
+        drift_turn_s=float(drift_turn_s),
         **(rig or {}),
     )
 

@@ -13,7 +13,9 @@ see. As in the authors' code, e_t is a random walk:
   random sign, shared by all stages (or per stage with ``drift_per_stage``) and constant within
   the episode. With knots > 0 (extreme) each slope is redrawn every knot_min..knot_max control
   steps, on a step counter that does not restart at episode resets, so the slope process runs on
-  across episodes; the accumulated drift of an episode turns back at +- ``drift_bound_fs``.
+  across episodes; the accumulated drift of an episode turns back at +- ``drift_bound_fs``:
+  in one step (the slope's sign flips), or with ``drift_turn_steps`` > 0 over that many steps,
+  the slope going linearly from v to -v and the turn begun so that it peaks at the bound.
 
 Only control steps advance the walk and the drift: the measurement at reset sees e_0.
 
@@ -28,6 +30,7 @@ of :mod:`ops_sim_ros.vibration` at t = steps x ``step_s`` since the process star
 from __future__ import annotations
 
 import numpy as np
+from ops_contract.config import REFERENCE_STEP_S
 
 from .vibration import make_vibration
 
@@ -45,6 +48,10 @@ def loop_steps(reference_steps: int, time_scale: float) -> int:
 class DelayNoise:
     """Stateful disturbance of ``num_envs`` x ``stage`` delay lines (all values in fs)."""
 
+    # Smooth turns at the bound (class defaults: a process pickled before they existed has none)
+    turn_steps = 0
+    _turning = False
+
     def __init__(
         self,
         num_envs: int,
@@ -57,6 +64,7 @@ class DelayNoise:
         drift_knot_min_steps: int = 0,
         drift_knot_max_steps: int = 0,
         drift_bound_fs: float = np.inf,
+        drift_turn_steps: int = 0,
         initial_sigma_fs: float = 0.0,
         initial_clip_sigmas: float = 2.0,
         initial_offset_sigmas: float = 0.0,
@@ -74,6 +82,7 @@ class DelayNoise:
         self.knot_min = int(drift_knot_min_steps)
         self.knot_max = int(drift_knot_max_steps)
         self.bound = float(drift_bound_fs)
+        self.turn_steps = int(drift_turn_steps)
         self.initial_sigma = float(initial_sigma_fs)
         self.initial_clip = float(initial_clip_sigmas) * self.initial_sigma
         self.initial_offset = float(initial_offset_sigmas) * self.initial_sigma
@@ -100,6 +109,7 @@ class DelayNoise:
             drift_knot_min_steps=loop_steps(config.drift_knot_min_steps, scale),
             drift_knot_max_steps=loop_steps(config.drift_knot_max_steps, scale),
             drift_bound_fs=config.cycles_to_fs(config.drift_bound_cycles),
+            drift_turn_steps=round(config.drift_turn_s / (REFERENCE_STEP_S * scale)),
             initial_sigma_fs=config.initial_sigma_fs,
             initial_clip_sigmas=config.initial_clip_sigmas,
             initial_offset_sigmas=config.initial_offset_sigmas,
@@ -120,6 +130,10 @@ class DelayNoise:
         self.mu = np.zeros(shape)  # drift accumulated in this episode
         self.slope = np.zeros(shape)  # drift per control step
         self.steps_left = np.full(shape, _FOREVER, dtype=np.int64)
+        self.turn_left = np.zeros(shape, dtype=np.int64)  # steps left of a smooth turn
+        self.turn_rate = np.zeros(shape)  # its change of slope per step
+        self.turn_to = np.zeros(shape)  # the slope it ends on
+        self._turning = False
         self._bound_safe = self._knot_in = _FOREVER
         if self.knots:
             self._redraw_knots(np.ones(shape, dtype=bool))
@@ -161,6 +175,8 @@ class DelayNoise:
             e0 += self.rng.uniform(-self.initial_offset, self.initial_offset, size=(count, 1))
         self.walk[mask] = e0
         self.mu[mask] = 0.0
+        if self._turning:
+            self.turn_left[mask] = 0
         if self.drift_enabled and not self.knots:
             self.slope[mask] = self._draw_slopes(count)
         self._update_bound_safe()
@@ -178,6 +194,8 @@ class DelayNoise:
         rows = where.any(axis=1)
         slopes = self._draw_slopes(int(rows.sum()))
         self.slope[rows] = np.where(where[rows], slopes, self.slope[rows])
+        if self._turning:  # a knot ends a turn under way
+            self.turn_left[where] = 0
         lengths = self.rng.integers(self.knot_min, self.knot_max + 1, size=where.shape)
         if not self.per_stage:
             lengths[:] = lengths[:, :1]
@@ -189,8 +207,10 @@ class DelayNoise:
         """Steps that can skip the |mu| > bound check: |mu| grows by at most max|slope| a step,
         so for ``_bound_safe`` steps no element can cross (one step of margin for rounding)."""
         speed = float(np.abs(self.slope).max()) if self.slope.size else 0.0
-        room = self.bound - float(np.abs(self.mu).max(initial=0.0))
-        if speed == 0.0 or not np.isfinite(room):
+        room = self.bound - float(np.abs(self.mu).max(initial=0.0)) - speed * self._turn_lead
+        if self._turning:
+            self._bound_safe = 0
+        elif speed == 0.0 or not np.isfinite(room):
             self._bound_safe = _FOREVER
         else:
             self._bound_safe = max(int(room / speed) - 1, 0)
@@ -224,13 +244,18 @@ class DelayNoise:
     def _advance_drift(self) -> None:
         """One step of the drift: mu moves by its slope, turns at the bound, knots redraw."""
         self.mu += self.slope
+        if self._turning:
+            self._turn_on()
         # The bound and knot checks only run when they can fire (counters kept by
         # _redraw_knots and _update_bound_safe); the result is the same as checking every step.
         self._bound_safe -= 1
         if self._bound_safe < 0:
-            out = np.abs(self.mu) > self.bound
-            if out.any():
-                self.slope[out] = -np.sign(self.mu[out]) * np.abs(self.slope[out])
+            if self.turn_steps:
+                self._begin_turns()
+            else:
+                out = np.abs(self.mu) > self.bound
+                if out.any():
+                    self.slope[out] = -np.sign(self.mu[out]) * np.abs(self.slope[out])
             self._update_bound_safe()
         if self.knots:
             self.steps_left -= 1
@@ -241,3 +266,31 @@ class DelayNoise:
                     self._redraw_knots(knot)
                 else:
                     self._knot_in = int(self.steps_left.min())
+
+    @property
+    def _turn_lead(self) -> float:
+        """Slopes of travel from a smooth turn's start to its peak: one step at v, then the
+        slope's first half-turn (T/4 - 1/2); 0 for the one-step turn."""
+        return self.turn_steps / 4 + 0.5 if self.turn_steps else 0.0
+
+    def _begin_turns(self) -> None:
+        """Begin a smooth turn where the drift heads out and would pass the bound by its peak
+        (the slope then goes from v to -v in ``turn_steps`` equal steps and the accumulated
+        drift peaks within one step's drift beyond the bound)."""
+        speed = np.abs(self.slope)
+        begin = (self.slope * self.mu > 0.0) & (self.turn_left == 0)
+        begin &= np.abs(self.mu) + speed * self._turn_lead > self.bound
+        if begin.any():
+            self.turn_to[begin] = -self.slope[begin]
+            self.turn_rate[begin] = -2.0 * self.slope[begin] / self.turn_steps
+            self.turn_left[begin] = self.turn_steps
+            self._turning = True
+
+    def _turn_on(self) -> None:
+        """One step of the turns under way (a turn's last step lands on its end slope)."""
+        on = self.turn_left > 0
+        self.slope[on] += self.turn_rate[on]
+        self.turn_left[on] -= 1
+        done = on & (self.turn_left == 0)
+        self.slope[done] = self.turn_to[done]
+        self._turning = bool(self.turn_left.any())

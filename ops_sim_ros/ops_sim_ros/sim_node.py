@@ -67,6 +67,7 @@ _CONFIG_OVERRIDES = (
     ("jitter_sigma_cycles", "std of each step of the delays' random walk, optical cycles"),
     ("drift_slope_max_cycles", "largest drift, optical cycles per step (hard, extreme)"),
     ("drift_slope_min_cycles", "smallest drift, optical cycles per step (hard, extreme)"),
+    ("drift_turn_s", "seconds over which the drift's slope reverses at its bound (0: one step)"),
     ("initial_sigma_cycles", "std of the initial delay errors (clipped at 2 sigma), cycles"),
     ("actuator_range_cycles", "set-points are clipped to +- this, optical cycles"),
     ("detector_noise", "std of additive noise on detected pulse energies (normalized)"),

@@ -288,3 +288,55 @@ def test_step_result_fields_equal_the_physics_output(num_envs, detector):
         np.testing.assert_array_equal(r.reward, -((1.0 - r.power) ** 2))
         for arr in (r.power, r.reward, r.main_pulse_energy, r.rejected_energy):
             assert arr.shape == (num_envs,) and arr.dtype == np.float64
+
+
+@pytest.mark.parametrize("turn_steps", [1, 7, 40])
+def test_a_smooth_turn_reverses_the_slope_evenly_and_peaks_at_the_bound(turn_steps):
+    """drift_turn_steps > 0: at the bound the slope goes from v to -v in turn_steps equal
+    steps (no faster), the accumulated drift peaks within one step's drift of the bound, and
+    the drift goes on back and forth between the bounds."""
+    v, bound = 0.05, 3.0
+    noise = DelayNoise(
+        num_envs=2,
+        stage=3,
+        jitter_sigma_fs=0.0,
+        drift_slope_min_fs=v,
+        drift_slope_max_fs=v,
+        drift_bound_fs=bound,
+        drift_turn_steps=turn_steps,
+        rng=np.random.default_rng(3),
+    )
+    noise.new_episodes(np.ones(2, dtype=bool))
+    slopes, mus = [], []
+    for _ in range(1000):
+        noise.sample()
+        slopes.append(noise.slope.copy())
+        mus.append(noise.mu.copy())
+    slopes, mus = np.array(slopes), np.array(mus)
+    change = np.abs(np.diff(slopes, axis=0))
+    assert change.max() <= 2 * v / turn_steps + 1e-12
+    assert np.all(np.isclose(np.abs(slopes), v) | (np.abs(slopes) < v))
+    assert np.abs(mus).max() <= bound + v
+    assert mus.max() > bound - 2 * v and mus.min() < -bound + 2 * v  # both bounds reached
+    # each turn takes turn_steps steps from +-v to -+v: the slope is strictly between them for
+    # turn_steps - 1 steps in a row
+    assert np.count_nonzero(np.diff(np.sign(slopes[:, 0, 0]))) >= 2
+    inside = np.abs(slopes[:, 0, 0]) < v - 1e-9
+    runs = np.diff(np.flatnonzero(np.diff(np.r_[0, inside.astype(int), 0])))[::2]
+    if turn_steps > 1:
+        assert runs.size >= 2 and np.all(runs == turn_steps - 1)
+    else:
+        assert not inside.any()
+
+
+def test_smooth_turns_count_seconds_of_physical_time():
+    """drift_turn_s becomes steps of the loop: 0.1 s a step under time_base step, step_s under
+    seconds; 0 keeps the one-step turn."""
+    turns = {}
+    for time_base, step_s in (("step", 0.1), ("seconds", 0.01), ("seconds", 0.1)):
+        cfg = make_config(5, "hard", time_base=time_base, step_s=step_s, drift_turn_s=12.0)
+        turns[time_base, step_s] = DelayNoise.from_config(cfg, 1).turn_steps
+    assert turns == {("step", 0.1): 120, ("seconds", 0.01): 1200, ("seconds", 0.1): 120}
+    assert DelayNoise.from_config(make_config(5, "hard"), 1).turn_steps == 0
+    with pytest.raises(ValueError, match=r"drift_turn_s must be from 0\.0 to 3600\.0"):
+        make_config(5, "hard", drift_turn_s=-1.0)

@@ -11,8 +11,9 @@ figure.
 
 What a lab asks next, each kept with the run: ``--rig KEY=VALUE`` changes one of the rig's
 figures (``trace_adc_bits=12``: what a finer digitizer buys over the night; the tracker is told
-of it), ``--realism ideal`` starts from the ideal rig, and ``--param NAME=VALUE`` sets one of
-the controller's parameters.
+of it), ``--realism ideal`` starts from the ideal rig, ``--param NAME=VALUE`` sets one of the
+controller's parameters, and ``--drift-turn-s S`` turns the drift at its bound over S seconds
+as a lab's thermal drift turns (the simulator's default turns it in one step).
 
 **Checkpointed**: every ``--checkpoint-every`` simulated seconds the whole state (simulator,
 controller, loop, figures so far) is pickled to ``OUT/state.pkl`` (written aside, then renamed);
@@ -50,7 +51,7 @@ PAGE = REPO / "docs" / "results" / "soak"
 GOAL_RMS_PCT, GOAL_LOCKED, GOAL_LOSSES = 1.5, 0.999, 0
 #: What a run stored before a setting existed had of it: a run resumes where its stored
 #: settings, these filled in, equal the command's (the hours may grow).
-SETTING_DEFAULTS = {"realism": "lab", "rig": {}, "params": {}}
+SETTING_DEFAULTS = {"realism": "lab", "rig": {}, "params": {}, "drift_turn_s": 0.0}
 #: Figures of the rig that --rig does not take: the latency and response are --latency-ms and
 #: --lag-ms, the time base and vibration are the soak's own.
 RIG_NOT_TAKEN = ("latency_steps", "actuator_lag_steps", "time_base", "step_s", "vibration")
@@ -101,6 +102,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="the controller's parameters over its defaults (the tracker's: docs/interfaces.md), "
         "e.g. hold_dither_cycles=0.016",
     )
+    p.add_argument(
+        "--drift-turn-s",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="the drift's slope reverses at its bound over S seconds, as a lab's thermal drift "
+        "turns (default 0: in one step, the simulator's default)",
+    )
     p.add_argument("--block-s", type=float, default=60.0, help="simulated s per figure point")
     p.add_argument(
         "--checkpoint-every",
@@ -149,6 +158,16 @@ def rig_of(args) -> dict[str, Any]:
     return dict(sorted(rig.items()))
 
 
+def drift_turn_of(args) -> float:
+    """``--drift-turn-s`` (ValueError naming its range)."""
+    from ops_contract.config import LIMITS
+
+    low, high = LIMITS["drift_turn_s"]
+    if not low <= args.drift_turn_s <= high:
+        raise ValueError(f"--drift-turn-s must be from {low:g} to {high:g} s")
+    return float(args.drift_turn_s)
+
+
 def settings_of(args) -> dict[str, Any]:
     return {
         "controller": args.controller,
@@ -161,6 +180,7 @@ def settings_of(args) -> dict[str, Any]:
         "compute_ms": args.compute_ms,
         "compute_scale": float(args.compute_scale),
         "block_s": float(args.block_s),
+        "drift_turn_s": drift_turn_of(args),
         "realism": args.realism,
         "rig": rig_of(args),
         "params": params_of(args),
@@ -179,6 +199,7 @@ def new_state(settings: dict[str, Any]) -> dict[str, Any]:
         lag_ms=settings["lag_ms"],
         realism=settings["realism"],
         rig=settings["rig"],
+        drift_turn_s=settings["drift_turn_s"],
     )
     loop = start_loop(
         settings["controller"],

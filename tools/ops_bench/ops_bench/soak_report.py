@@ -59,7 +59,9 @@ def rig_words(settings: dict[str, Any], quote: str = "") -> str:
     """ "lab rig", or the preset and the figures ``--rig`` changed ("lab rig, trace_adc_bits=0")."""
     changed = "".join(f", {quote}{k}={v}{quote}" for k, v in settings["rig"].items())
     told = "".join(f", {quote}{k}={v}{quote}" for k, v in settings["params"].items())
-    return f"{quote}{settings['realism']}{quote} rig{changed}" + (
+    turn = settings.get("drift_turn_s", 0.0)
+    turns = f", the drift turning over {turn:g} s" if turn else ""
+    return f"{quote}{settings['realism']}{quote} rig{changed}{turns}" + (
         f" (the controller with{told[1:]})" if told else ""
     )
 

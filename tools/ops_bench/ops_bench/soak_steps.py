@@ -43,6 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="as soak's: figures of the rig changed from the preset")  # fmt: skip
     p.add_argument("--param", nargs="+", action="extend", default=[], metavar="NAME=VALUE",
                    help="as soak's: the tracker's parameters over its defaults")  # fmt: skip
+    p.add_argument("--drift-turn-s", type=float, default=0.0, metavar="S", help="as soak's")
     p.add_argument("--out", type=Path, required=True, help="the steps (.npz) and account (.json)")
     return p
 
@@ -57,6 +58,7 @@ def soak_settings(args) -> dict:
     soak_args = soak_parser().parse_args(
         ["--rate", str(args.rate), "--seed", str(args.seed), "--vibration", args.vibration,
          "--compute-ms", str(args.compute_ms), "--realism", args.realism,
+         "--drift-turn-s", str(args.drift_turn_s),
          *(["--rig", *args.rig] if args.rig else []),
          *(["--param", *args.param] if args.param else [])]
     )  # fmt: skip

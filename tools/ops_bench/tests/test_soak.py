@@ -112,7 +112,7 @@ def test_a_run_stored_before_the_rig_settings_resumes(tmp_path):
     assert run(tmp_path, "old")[0] == 0
     path = tmp_path / "old" / "state.pkl"
     state = soak.load_state(path)
-    for key in ("realism", "rig"):
+    for key in ("realism", "rig", "drift_turn_s"):
         del state["settings"][key]
     soak.save_state(state, path)
     assert run(tmp_path, "old")[0] == 0
@@ -127,3 +127,16 @@ def test_the_controllers_parameters_are_its_own_and_kept_with_the_run(tmp_path, 
     assert "hold_dither_cycles=0.02" in (out / "page" / "index.md").read_text()
     assert run(tmp_path, "bad", "--param", "hold_dither_cycles=5")[0] == 2
     assert "hold_dither_cycles must be in" in capsys.readouterr().err
+
+
+def test_the_drift_turn_is_simulated_and_kept_with_the_run(tmp_path, capsys):
+    code, out = run(tmp_path, "turn", "--drift-turn-s", "90")
+    assert code == 0
+    state = soak.load_state(out / "state.pkl")
+    assert state["loop"].sim.config.drift_turn_s == 90.0
+    assert state["loop"].sim.noise.turn_steps == 900  # 90 s at 10 Hz
+    assert state["settings"]["drift_turn_s"] == 90.0
+    assert "the drift turning over 90 s" in (out / "page" / "index.md").read_text()
+    assert run(tmp_path, "turn")[0] == 2  # resumed only with the same turn
+    assert run(tmp_path, "bad", "--drift-turn-s", "-1")[0] == 2
+    assert "--drift-turn-s must be from 0 to 3600 s" in capsys.readouterr().err
