@@ -111,6 +111,17 @@ OTHER_PAGES = (
         "Soak",
         "the tracker for simulated hours on the lab rig, written by `ops-bench soak`",
     ),
+    (
+        "soak/turns/turn600/index.md",
+        "Soak, the drift turning over 600 s",
+        "the same 30 hours with the drift's slope reversing at its bound over ten minutes, "
+        "written by `ops-bench soak --drift-turn-s 600`",
+    ),
+    (
+        "soak/turns/turn120/index.md",
+        "Soak, the drift turning over 120 s",
+        "the same over two minutes, written by `ops-bench soak --drift-turn-s 120`",
+    ),
 )
 
 HEADER = (

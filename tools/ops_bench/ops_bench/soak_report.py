@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +43,8 @@ def figure(state: dict[str, Any], result: dict[str, Any], path: Path) -> None:
     rms, locked = result["power_rms_pct"], result["locked_fraction"]
     fig.suptitle(
         f"{settings['controller']}, N = 5 {settings['mode']}, {rig_words(settings)}, "
-        f"{settings['vibration']} "
-        f"vibration, {settings['rate_hz']:g} Hz, {result['hours']:g} h: P_N/P_max rms "
+        f"{settings['vibration']} vibration{turn_words(settings)}, {settings['rate_hz']:g} Hz, "
+        f"{result['hours']:g} h\nP_N/P_max rms "
         + ("-" if rms is None else f"{rms:.2f} %")
         + ", readings >= 0.95 "
         + ("-" if locked is None else f"{100 * locked:.3f} %")
@@ -59,11 +60,15 @@ def rig_words(settings: dict[str, Any], quote: str = "") -> str:
     """ "lab rig", or the preset and the figures ``--rig`` changed ("lab rig, trace_adc_bits=0")."""
     changed = "".join(f", {quote}{k}={v}{quote}" for k, v in settings["rig"].items())
     told = "".join(f", {quote}{k}={v}{quote}" for k, v in settings["params"].items())
-    turn = settings.get("drift_turn_s", 0.0)
-    turns = f", the drift turning over {turn:g} s" if turn else ""
-    return f"{quote}{settings['realism']}{quote} rig{changed}{turns}" + (
+    return f"{quote}{settings['realism']}{quote} rig{changed}" + (
         f" (the controller with{told[1:]})" if told else ""
     )
+
+
+def turn_words(settings: dict[str, Any]) -> str:
+    """ ", the drift turning at its bound over S s" where ``--drift-turn-s`` set it, else "". """
+    turn = settings.get("drift_turn_s", 0.0)
+    return f", the drift turning at its bound over {turn:g} s" if turn else ""
 
 
 def _f(value, spec: str) -> str:
@@ -74,7 +79,7 @@ def page(result: dict[str, Any], figure_path: Path, out: Path) -> str:
     goals = result["goals"]
     locked = result["locked_fraction"]
     first = result["first_lock_step"]
-    rel = Path("../../figures") / figure_path.name
+    rel = Path(os.path.relpath(figure_path.resolve(), out.resolve()))
     lines = [
         "# Soak: the tracker for hours on the lab rig",
         "",
@@ -82,7 +87,8 @@ def page(result: dict[str, Any], figure_path: Path, out: Path) -> str:
         f"`time_base` seconds at {result['rate_hz']:g} Hz, `{result['vibration']}` vibration, "
         f"the {rig_words(result, '`')} with a latency of {result['latency_ms']:g} ms and a "
         "delay-line "
-        f"response of {result['lag_ms']:g} ms, N = 5 {result['mode']} (testing split), seed "
+        f"response of {result['lag_ms']:g} ms{turn_words(result)}, N = 5 {result['mode']} "
+        "(testing split), seed "
         f"{result['seed']}; the controller's compute caps its rate "
         + (
             "(measured per reading, thread CPU time)"

@@ -136,7 +136,7 @@ def test_the_drift_turn_is_simulated_and_kept_with_the_run(tmp_path, capsys):
     assert state["loop"].sim.config.drift_turn_s == 90.0
     assert state["loop"].sim.noise.turn_steps == 900  # 90 s at 10 Hz
     assert state["settings"]["drift_turn_s"] == 90.0
-    assert "the drift turning over 90 s" in (out / "page" / "index.md").read_text()
+    assert "the drift turning at its bound over 90 s" in (out / "page" / "index.md").read_text()
     assert run(tmp_path, "turn")[0] == 2  # resumed only with the same turn
     assert run(tmp_path, "bad", "--drift-turn-s", "-1")[0] == 2
     assert "--drift-turn-s must be from 0 to 3600 s" in capsys.readouterr().err
