@@ -66,7 +66,8 @@ def rig_words(settings: dict[str, Any], quote: str = "") -> str:
 
 
 def turn_words(settings: dict[str, Any]) -> str:
-    """ ", the drift turning at its bound over S s" where ``--drift-turn-s`` set it, else "". """
+    """The drift's turn in words (", the drift turning at its bound over 120 s"), or "" for
+    the default turn in one step."""
     turn = settings.get("drift_turn_s", 0.0)
     return f", the drift turning at its bound over {turn:g} s" if turn else ""
 
