@@ -110,3 +110,15 @@ def test_the_default_node_keeps_the_papers_step(make_node):
     node = make_node("rate_hz:=500")
     assert node._config.time_base == "step" and node._config.step_s == 0.1
     assert node._config.vibration == "none"
+
+
+def test_the_drift_turn_is_a_parameter_in_seconds_of_the_loop(make_node):
+    """drift_turn_s reaches the simulation as steps of the loop; -1 keeps the mode's one-step
+    turn; a negative value other than -1 is refused and the turn kept."""
+    node = make_node("mode:=hard", "time_base:=seconds", "rate_hz:=50", "drift_turn_s:=30")
+    assert node._config.drift_turn_s == 30.0
+    assert node._sim.noise.turn_steps == 1500  # 30 s at 50 Hz
+    assert not node.set_parameters([Parameter("drift_turn_s", value=-2.0)])[0].successful
+    assert node._config.drift_turn_s == 30.0
+    assert node.set_parameters([Parameter("drift_turn_s", value=-1.0)])[0].successful
+    assert node._config.drift_turn_s == 0.0 and node._sim.noise.turn_steps == 0
