@@ -46,8 +46,13 @@ def test_a_gone_session_books_nothing():
 
 def test_the_steal_share_is_read_from_this_machine_and_is_a_share():
     before = machine_times()
-    sum(i * i for i in range(200_000))  # (some CPU time passes)
+    # Work until the kernel books a tick: /proc/stat's counts move in ticks of 10 ms, and an
+    # idle core's are booked late (tickless idle), so a fixed amount of work may see none.
+    deadline = time.monotonic() + 10.0
     after = machine_times()
+    while after[1] == before[1] and time.monotonic() < deadline:
+        sum(i * i for i in range(50_000))
+        after = machine_times()
     assert after[1] > before[1] and after[0] >= before[0]
     assert 0.0 <= steal_share(before, after) <= 1.0
     assert steal_share((5, 100), (15, 300)) == 0.05
