@@ -85,19 +85,12 @@ def digitize(
     return np.mean(reads, axis=0)
 
 
-#: A digitized reading's error as a controller should weigh it, in steps of the ADC: rounding
-#: alone is 0.29 steps rms, but where the readings hold still it is biased, not noise; the
-#: tracker told 0.6 held hard mode on an 8-bit trace (0.994, against 0.977 with 0.29 and 0.833
-#: with none; docs/physics.md).
-QUANTIZATION_NOISE_STEPS = 0.6
-
-
-def reading_noise_std(config, quantization_steps: float = QUANTIZATION_NOISE_STEPS) -> float:
+def reading_noise_std(config, quantization_steps: float) -> float:
     """The std of the error of a detected pulse energy that a controller told of this rig
-    should expect: the detector's noise (averaged), the digitizer's rounding
-    (``quantization_steps`` of its step) and the source's pulse-to-pulse noise (the stacked
-    pulse's energy, the largest, moves by about its rms over the square root of the pulse
-    count)."""
+    should expect: the detector's noise (averaged), the digitizer's rounding weighed as
+    ``quantization_steps`` of its step (the controller's choice: the tracker's
+    ``quantization_noise_steps``) and the source's pulse-to-pulse noise (the stacked pulse's
+    energy, the largest, moves by about its rms over the square root of the pulse count)."""
     var = config.detector_noise**2 / config.trace_averages
     var += config.pulse_amplitude_noise**2 / 2**config.stage
     if config.trace_adc_bits > 0:

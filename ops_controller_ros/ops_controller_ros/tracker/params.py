@@ -205,8 +205,9 @@ class TrackerParams:
         0.2, "under a told vibration, noisy_dither_factor", 0.0, 2.0
     )
     # A digitized trace's rounding as the fits weigh it, in steps of its ADC (the rig's told
-    # trace_adc_bits): where the readings hold still near the optimum the rounding is a bias,
-    # and weighed as 0.6 steps the tracker held the paper's hard mode best on an 8-bit trace.
+    # trace_adc_bits): alone it is 0.29 steps rms, but where the readings hold still near the
+    # optimum it is a bias, and weighed as 0.6 steps the tracker held the paper's hard mode best
+    # on an 8-bit trace (0.994, against 0.977 with 0.29 and 0.833 with none; docs/physics.md).
     # Under the lab vibration 0.3 (the rounding's own rms) raised the share of readings >= 0.95
     # and lost more locks at the drift's turns (docs/loop_rate.md, "The tracker under
     # vibration").
